@@ -1,0 +1,8 @@
+//! `objloc eval`: placeholder until its issue lands.
+
+#[derive(Debug, clap::Args)]
+pub struct Args {}
+
+pub fn run(_args: Args) -> anyhow::Result<()> {
+    anyhow::bail!("objloc eval is not implemented yet")
+}

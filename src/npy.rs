@@ -1,0 +1,152 @@
+//! NumPy `.npy` (format 1.0) for float32, float64, uint8 and int64 arrays in C order: the
+//! interchange with Python tools. Writing goes through [`crate::output::write_atomic`].
+
+use std::path::Path;
+
+use thiserror::Error;
+
+#[derive(Debug, Error)]
+pub enum NpyError {
+    #[error("{path}: {source}")]
+    Io {
+        path: String,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("{path}: not a .npy file this reader understands: {what}")]
+    Format { path: String, what: String },
+}
+
+/// Element types written by objloc.
+pub trait NpyElem: Copy {
+    const DESCR: &'static str;
+    fn put(self, out: &mut Vec<u8>);
+}
+impl NpyElem for f32 {
+    const DESCR: &'static str = "<f4";
+    fn put(self, out: &mut Vec<u8>) {
+        out.extend_from_slice(&self.to_le_bytes());
+    }
+}
+impl NpyElem for f64 {
+    const DESCR: &'static str = "<f8";
+    fn put(self, out: &mut Vec<u8>) {
+        out.extend_from_slice(&self.to_le_bytes());
+    }
+}
+impl NpyElem for u8 {
+    const DESCR: &'static str = "|u1";
+    fn put(self, out: &mut Vec<u8>) {
+        out.push(self);
+    }
+}
+impl NpyElem for i64 {
+    const DESCR: &'static str = "<i8";
+    fn put(self, out: &mut Vec<u8>) {
+        out.extend_from_slice(&self.to_le_bytes());
+    }
+}
+
+/// Encodes `data` (C order) with `shape` as `.npy` bytes.
+pub fn encode<T: NpyElem>(shape: &[usize], data: &[T]) -> Vec<u8> {
+    debug_assert_eq!(shape.iter().product::<usize>(), data.len());
+    let shape_s = match shape {
+        [n] => format!("({n},)"),
+        _ => format!(
+            "({})",
+            shape.iter().map(|d| d.to_string()).collect::<Vec<_>>().join(", ")
+        ),
+    };
+    let mut header = format!(
+        "{{'descr': '{}', 'fortran_order': False, 'shape': {shape_s}, }}",
+        T::DESCR
+    );
+    // Magic (6) + version (2) + header length (2) + header + '\n' is a multiple of 64.
+    let total = 10 + header.len() + 1;
+    header.push_str(&" ".repeat((64 - total % 64) % 64));
+    header.push('\n');
+    let mut out = Vec::with_capacity(10 + header.len() + data.len() * 4);
+    out.extend_from_slice(b"\x93NUMPY\x01\x00");
+    out.extend_from_slice(&(header.len() as u16).to_le_bytes());
+    out.extend_from_slice(header.as_bytes());
+    for &v in data {
+        v.put(&mut out);
+    }
+    out
+}
+
+pub fn write<T: NpyElem>(path: &Path, shape: &[usize], data: &[T]) -> Result<(), NpyError> {
+    crate::output::write_atomic(path, &encode(shape, data)).map_err(|source| NpyError::Io {
+        path: path.display().to_string(),
+        source,
+    })
+}
+
+/// Reads a little-endian float32 `.npy` in C order: (shape, data).
+pub fn read_f32(path: &Path) -> Result<(Vec<usize>, Vec<f32>), NpyError> {
+    let p = path.display().to_string();
+    let bytes = std::fs::read(path).map_err(|source| NpyError::Io {
+        path: p.clone(),
+        source,
+    })?;
+    let fmt = |what: &str| NpyError::Format {
+        path: p.clone(),
+        what: what.to_owned(),
+    };
+    if bytes.len() < 10 || &bytes[..6] != b"\x93NUMPY" {
+        return Err(fmt("missing magic"));
+    }
+    let hlen = u16::from_le_bytes([bytes[8], bytes[9]]) as usize;
+    let header = std::str::from_utf8(bytes.get(10..10 + hlen).ok_or_else(|| fmt("short header"))?)
+        .map_err(|_| fmt("header is not text"))?;
+    if !header.contains("'<f4'") || header.contains("'fortran_order': True") {
+        return Err(fmt("only little-endian float32 in C order is read"));
+    }
+    let shape_s = header
+        .split("'shape': (")
+        .nth(1)
+        .and_then(|s| s.split(')').next())
+        .ok_or_else(|| fmt("no shape"))?;
+    let shape: Vec<usize> = shape_s
+        .split(',')
+        .map(str::trim)
+        .filter(|s| !s.is_empty())
+        .map(|s| s.parse().map_err(|_| fmt("bad shape")))
+        .collect::<Result<_, _>>()?;
+    let body = &bytes[10 + hlen..];
+    let n: usize = shape.iter().product();
+    if body.len() != n * 4 {
+        return Err(fmt("data length does not match shape"));
+    }
+    let data = body
+        .chunks_exact(4)
+        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+        .collect();
+    Ok((shape, data))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn header_is_aligned_and_roundtrips() {
+        let b = encode(&[2, 3], &[1.0f32, 2.0, 3.0, 4.0, 5.0, 6.0]);
+        let hlen = u16::from_le_bytes([b[8], b[9]]) as usize;
+        assert_eq!((10 + hlen) % 64, 0);
+        assert_eq!(b.len(), 10 + hlen + 24);
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("a.npy");
+        write(&p, &[2, 3], &[1.0f32, 2.0, 3.0, 4.0, 5.0, 6.0]).unwrap();
+        let (shape, data) = read_f32(&p).unwrap();
+        assert_eq!(shape, vec![2, 3]);
+        assert_eq!(data[5], 6.0);
+    }
+
+    #[test]
+    fn one_dimensional_shape_has_trailing_comma() {
+        let b = encode(&[3], &[1u8, 2, 3]);
+        let s = String::from_utf8_lossy(&b[10..]);
+        assert!(s.contains("'shape': (3,)"), "{s}");
+    }
+}
