@@ -1,1 +1,439 @@
-//! grid: placeholder.
+//! The belief: a dense, world-aligned 3D grid in `odom` of per-cell log-odds (f32) that part
+//! of the object occupies the cell, and the paper's Bayes update of it from one frame.
+//!
+//! Invariants: cell (i, j, k) has its min corner at `origin_m + voxel_size_m * (i, j, k)` and
+//! lives at flat index `(i * ny + j) * nz + k` (C order, as the `.npy` export); every cell
+//! starts at the prior's log-odds; an update touches exactly the cells whose centres project
+//! into a tile of the image in front of the camera, each cell independently, so the result
+//! is bit-identical for any number of threads. No I/O.
+
+use nalgebra::{Point3, Vector3};
+use rayon::prelude::*;
+use thiserror::Error;
+
+use crate::geometry::{Camera, Iso3};
+
+/// Largest grid objloc allocates: log-odds (4 bytes) + view count (2 bytes) + the blur's
+/// scratch buffer (8 bytes) per cell. 4 GiB keeps a 24 GiB machine safe with room for the
+/// rest; a request beyond it is refused before anything is allocated.
+pub const MAX_GRID_BYTES: u64 = 4 << 30;
+
+/// Bytes one cell costs (log-odds f32, views u16, blur scratch f64).
+pub const BYTES_PER_CELL: u64 = 4 + 2 + 8;
+
+#[derive(Debug, Error, Clone, PartialEq)]
+pub enum GridError {
+    #[error("bounds min {min:?} must be below max {max:?} on every axis, all finite")]
+    Bounds { min: [f64; 3], max: [f64; 3] },
+    #[error("voxel size {voxel_size_m} m must be positive and finite")]
+    Voxel { voxel_size_m: f64 },
+    #[error(
+        "a grid of {nx} x {ny} x {nz} cells would need {needed_mib} MiB, over the limit of {limit_mib} MiB; use a larger --voxel or smaller --bounds"
+    )]
+    TooLarge {
+        nx: u64,
+        ny: u64,
+        nz: u64,
+        needed_mib: u64,
+        limit_mib: u64,
+    },
+    #[error("prior {prior} must lie strictly between 0 and 1")]
+    Prior { prior: f64 },
+}
+
+/// Where the grid is and how fine.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct GridSpec {
+    /// Min corner of cell (0, 0, 0) in `odom`, metres.
+    pub origin_m: [f64; 3],
+    pub voxel_size_m: f64,
+    pub dims: [usize; 3],
+}
+
+impl GridSpec {
+    /// The smallest grid of `voxel_size_m` cells covering [min, max]; refused before
+    /// allocating when it would need more than [`MAX_GRID_BYTES`].
+    pub fn from_bounds(min: [f64; 3], max: [f64; 3], voxel_size_m: f64) -> Result<Self, GridError> {
+        if !(voxel_size_m.is_finite() && voxel_size_m > 0.0) {
+            return Err(GridError::Voxel { voxel_size_m });
+        }
+        if !(0..3).all(|a| min[a].is_finite() && max[a].is_finite() && min[a] < max[a]) {
+            return Err(GridError::Bounds { min, max });
+        }
+        let n = |a: usize| ((max[a] - min[a]) / voxel_size_m - 1e-9).ceil().max(1.0);
+        let (nx, ny, nz) = (n(0), n(1), n(2));
+        let cells = nx * ny * nz;
+        let needed = cells * BYTES_PER_CELL as f64;
+        if needed > MAX_GRID_BYTES as f64 {
+            return Err(GridError::TooLarge {
+                nx: nx as u64,
+                ny: ny as u64,
+                nz: nz as u64,
+                needed_mib: (needed / f64::from(1u32 << 20)).ceil() as u64,
+                limit_mib: MAX_GRID_BYTES >> 20,
+            });
+        }
+        Ok(Self {
+            origin_m: min,
+            voxel_size_m,
+            dims: [nx as usize, ny as usize, nz as usize],
+        })
+    }
+
+    pub fn cells(&self) -> usize {
+        self.dims[0] * self.dims[1] * self.dims[2]
+    }
+
+    #[inline]
+    pub fn index(&self, i: usize, j: usize, k: usize) -> usize {
+        (i * self.dims[1] + j) * self.dims[2] + k
+    }
+
+    /// (i, j, k) of a flat index.
+    #[inline]
+    pub fn ijk(&self, idx: usize) -> [usize; 3] {
+        let nz = self.dims[2];
+        let ny = self.dims[1];
+        [idx / (ny * nz), (idx / nz) % ny, idx % nz]
+    }
+
+    /// Centre of cell (i, j, k) in `odom`, metres.
+    #[inline]
+    pub fn center(&self, i: usize, j: usize, k: usize) -> [f64; 3] {
+        let v = self.voxel_size_m;
+        [
+            self.origin_m[0] + (i as f64 + 0.5) * v,
+            self.origin_m[1] + (j as f64 + 0.5) * v,
+            self.origin_m[2] + (k as f64 + 0.5) * v,
+        ]
+    }
+
+    /// Max corner of the grid, metres.
+    pub fn max_m(&self) -> [f64; 3] {
+        let v = self.voxel_size_m;
+        [
+            self.origin_m[0] + self.dims[0] as f64 * v,
+            self.origin_m[1] + self.dims[1] as f64 * v,
+            self.origin_m[2] + self.dims[2] as f64 * v,
+        ]
+    }
+}
+
+pub fn logit(p: f64) -> f64 {
+    (p / (1.0 - p)).ln()
+}
+
+pub fn sigmoid(l: f64) -> f64 {
+    1.0 / (1.0 + (-l).exp())
+}
+
+/// A frame's evidence per tile, already in the odds-ratio form of the paper:
+/// `delta = logit(p) - logit(prior)`, so that `log-odds' = log-odds + delta`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TileEvidence {
+    pub rows: usize,
+    pub cols: usize,
+    pub tile_px: u32,
+    /// Row-major, `delta[r * cols + c]`.
+    pub delta: Vec<f32>,
+}
+
+impl TileEvidence {
+    /// From tile probabilities (row-major) against `prior`. Probabilities are expected
+    /// strictly inside (0, 1) (the tree's leaves are smoothed); one at 0 or 1 would be an
+    /// infinite update, so it is held at the nearest representable f32 odds instead.
+    pub fn from_probabilities(rows: usize, cols: usize, tile_px: u32, p: &[f32], prior: f64) -> Self {
+        let lp = logit(prior);
+        let delta = p
+            .iter()
+            .map(|&pi| {
+                let pi = f64::from(pi).clamp(f64::from(f32::MIN_POSITIVE), 1.0 - f64::EPSILON);
+                (logit(pi) - lp) as f32
+            })
+            .collect();
+        Self {
+            rows,
+            cols,
+            tile_px,
+            delta,
+        }
+    }
+}
+
+/// The belief grid.
+#[derive(Debug, Clone)]
+pub struct Grid {
+    pub spec: GridSpec,
+    pub prior: f64,
+    /// Log-odds of each cell.
+    pub log_odds: Vec<f32>,
+    /// How many frames' pyramids contained each cell's centre (saturating).
+    pub views: Vec<u16>,
+    /// Optional clamp of the log-odds after each update: (min, max).
+    pub clamp: Option<(f32, f32)>,
+}
+
+impl Grid {
+    pub fn new(spec: GridSpec, prior: f64) -> Result<Self, GridError> {
+        if !(prior > 0.0 && prior < 1.0) {
+            return Err(GridError::Prior { prior });
+        }
+        let n = spec.cells();
+        Ok(Self {
+            spec,
+            prior,
+            log_odds: vec![logit(prior) as f32; n],
+            views: vec![0; n],
+            clamp: None,
+        })
+    }
+
+    pub fn prior_log_odds(&self) -> f32 {
+        logit(self.prior) as f32
+    }
+
+    /// Posterior probability of each cell, f32, in index order.
+    pub fn probabilities(&self) -> Vec<f32> {
+        self.log_odds
+            .par_iter()
+            .map(|&l| sigmoid(f64::from(l)) as f32)
+            .collect()
+    }
+
+    /// The paper's update for one frame: every cell whose centre lies in front of the camera
+    /// and projects into tile (r, c) gets `log-odds += delta[r, c]`.
+    ///
+    /// Centre projection, not any-overlap: a cell belongs to exactly one tile's pyramid, so
+    /// each frame counts once per cell, as the Markov assumption of the update requires. With
+    /// any-overlap a cell straddling a tile edge would take the evidence of two or more tiles
+    /// of the same image, counting one observation several times, and cells near the camera
+    /// (larger than a tile's footprint) would collect the evidence of many tiles.
+    ///
+    /// Returns the number of cells updated.
+    pub fn integrate(&mut self, camera_from_odom: &Iso3, camera: &Camera, ev: &TileEvidence) -> usize {
+        let spec = self.spec;
+        let [_, ny, nz] = spec.dims;
+        let slab = ny * nz;
+        if slab == 0 {
+            return 0;
+        }
+        let rot = camera_from_odom.rotation.to_rotation_matrix();
+        let step_k: Vector3<f64> = rot * Vector3::new(0.0, 0.0, spec.voxel_size_m);
+        let tile = f64::from(ev.tile_px);
+        let u_max = ev.cols as f64 * tile;
+        let v_max = ev.rows as f64 * tile;
+        let clamp = self.clamp;
+        let cam = *camera;
+        let delta = &ev.delta;
+        let cols = ev.cols;
+        self.log_odds
+            .par_chunks_mut(slab)
+            .zip(self.views.par_chunks_mut(slab))
+            .enumerate()
+            .map(|(i, (lo, views))| {
+                let mut updated = 0usize;
+                for j in 0..ny {
+                    let c0 = spec.center(i, j, 0);
+                    let p0 = camera_from_odom * Point3::new(c0[0], c0[1], c0[2]);
+                    let row_lo = &mut lo[j * nz..(j + 1) * nz];
+                    let row_views = &mut views[j * nz..(j + 1) * nz];
+                    for k in 0..nz {
+                        let p = p0 + step_k * k as f64;
+                        if p.z <= 1e-9 {
+                            continue;
+                        }
+                        let u = cam.fx * p.x / p.z + cam.cx;
+                        let v = cam.fy * p.y / p.z + cam.cy;
+                        // Negated comparisons also reject NaN.
+                        if !(u >= 0.0 && u < u_max && v >= 0.0 && v < v_max) {
+                            continue;
+                        }
+                        let c = (u / tile) as usize;
+                        let r = (v / tile) as usize;
+                        let mut l = row_lo[k] + delta[r * cols + c];
+                        if let Some((a, b)) = clamp {
+                            l = l.clamp(a, b);
+                        }
+                        row_lo[k] = l;
+                        row_views[k] = row_views[k].saturating_add(1);
+                        updated += 1;
+                    }
+                }
+                updated
+            })
+            .sum()
+    }
+
+    /// SHA-256 of the log-odds bytes (little-endian f32, index order), hex.
+    pub fn sha256_hex(&self) -> String {
+        use sha2::{Digest, Sha256};
+        let mut h = Sha256::new();
+        for chunk in self.log_odds.chunks(1 << 16) {
+            let bytes: Vec<u8> = chunk.iter().flat_map(|v| v.to_le_bytes()).collect();
+            h.update(&bytes);
+        }
+        h.finalize().iter().map(|b| format!("{b:02x}")).collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::camera_mount;
+
+    fn small_grid() -> Grid {
+        let spec = GridSpec::from_bounds([0.0, -0.5, 0.0], [2.0, 0.5, 1.0], 0.1).unwrap();
+        Grid::new(spec, 0.01).unwrap()
+    }
+
+    #[test]
+    fn spec_dims_and_refusal() {
+        let s = GridSpec::from_bounds([0.0; 3], [4.0, 4.0, 4.0], 0.04).unwrap();
+        assert_eq!(s.dims, [100, 100, 100]);
+        assert_eq!(s.index(1, 2, 3), (100 + 2) * 100 + 3);
+        assert_eq!(s.ijk(s.index(7, 8, 9)), [7, 8, 9]);
+        let e = GridSpec::from_bounds([0.0; 3], [100.0, 100.0, 100.0], 0.01).unwrap_err();
+        match e {
+            GridError::TooLarge { nx, needed_mib, .. } => {
+                assert_eq!(nx, 10_000);
+                assert_eq!(needed_mib, 10_000u64.pow(3) * 14 / (1 << 20) + 1);
+            }
+            other => panic!("{other:?}"),
+        }
+        assert!(GridSpec::from_bounds([0.0; 3], [1.0, f64::NAN, 1.0], 0.1).is_err());
+        assert!(GridSpec::from_bounds([0.0; 3], [1.0; 3], 0.0).is_err());
+    }
+
+    /// One frame, one tile at p = 0.9, a known camera: exactly the cells of that tile's
+    /// pyramid change, by exactly logit(0.9) - logit(prior).
+    #[test]
+    fn one_tile_updates_exactly_its_pyramid() {
+        let spec = GridSpec::from_bounds([0.0, -0.5, 0.0], [2.0, 0.5, 1.0], 0.1).unwrap();
+        let mut g = Grid::new(spec, 0.0078125).unwrap();
+        // Camera at the origin 0.5 m up, looking along +x (level): optical z = odom +x.
+        let odom_from_camera = camera_mount([0.0, 0.0, 0.5], 0.0);
+        let camera_from_odom = odom_from_camera.inverse();
+        // 2 x 2 tiles of 8 px: image 16 x 16, principal point at the centre, fx = 16
+        // (each tile spans 0.5 in normalised coordinates).
+        let cam = Camera {
+            width: 16,
+            height: 16,
+            fx: 16.0,
+            fy: 16.0,
+            cx: 8.0,
+            cy: 8.0,
+        };
+        // 2^-7: exactly representable in f32, so tiles at the prior add exactly 0.
+        let prior = 0.0078125;
+        // Only tile (row 0, col 1) = up and right carries p = 0.9; the others the prior.
+        let p = [prior as f32, 0.9, prior as f32, prior as f32];
+        let ev = TileEvidence::from_probabilities(2, 2, 8, &p, prior);
+        let n = g.integrate(&camera_from_odom, &cam, &ev);
+        assert!(n > 0);
+        // logit(0.9) - logit(2^-7) = 2.1972246 + 4.8441871, with 0.9 as the f32 the tree returns.
+        let expected = (logit(f64::from(0.9f32)) - logit(prior)) as f32;
+        assert!((expected - 7.0414117).abs() < 1e-5, "{expected}");
+        let base = logit(prior) as f32;
+        let mut changed = 0;
+        for i in 0..g.spec.dims[0] {
+            for j in 0..g.spec.dims[1] {
+                for k in 0..g.spec.dims[2] {
+                    let c = g.spec.center(i, j, k);
+                    // In optical coordinates: z = x_odom, x = -y_odom, y = -(z_odom - 0.5).
+                    let (zc, xc, yc) = (c[0], -c[1], -(c[2] - 0.5));
+                    let u = 16.0 * xc / zc + 8.0;
+                    let v = 16.0 * yc / zc + 8.0;
+                    let in_tile = (8.0..16.0).contains(&u) && (0.0..8.0).contains(&v);
+                    let l = g.log_odds[g.spec.index(i, j, k)];
+                    if in_tile {
+                        changed += 1;
+                        assert_eq!(l, base + expected, "cell {i},{j},{k} u={u} v={v}");
+                    } else {
+                        // Other tiles were at the prior: delta exactly 0.
+                        assert_eq!(l, base, "cell {i},{j},{k} u={u} v={v}");
+                    }
+                }
+            }
+        }
+        assert!(changed > 10, "{changed}");
+        // Hand check of one cell: centre (1.05, -0.25, 0.75) -> u = 16*0.25/1.05+8 = 11.8,
+        // v = 16*(-0.25)/1.05+8 = 4.19: in tile (0, 1).
+        let idx = g.spec.index(10, 2, 7);
+        let c = g.spec.center(10, 2, 7);
+        assert!((c[0] - 1.05).abs() < 1e-12 && (c[1] + 0.25).abs() < 1e-12 && (c[2] - 0.75).abs() < 1e-12);
+        assert_eq!(g.log_odds[idx], base + expected);
+        assert_eq!(g.views[idx], 1);
+        // A cell behind the camera is untouched.
+        let behind = GridSpec::from_bounds([-1.0, -0.5, 0.0], [-0.1, 0.5, 1.0], 0.1).unwrap();
+        let mut gb = Grid::new(behind, prior).unwrap();
+        assert_eq!(gb.integrate(&camera_from_odom, &cam, &ev), 0);
+    }
+
+    /// Two views of a point: the cell holding the point is in both pyramids, and every cell
+    /// in both lies near the point.
+    #[test]
+    fn two_views_intersect_at_the_point() {
+        let spec = GridSpec::from_bounds([-1.0, -1.0, 0.0], [1.0, 1.0, 1.0], 0.05).unwrap();
+        let mut g = Grid::new(spec, 0.0078125).unwrap();
+        // Aimed half a tile (1/16 rad) left of the point and 0.13 m below it, so the point
+        // projects into the middle of a tile in both views.
+        let target = Point3::new(0.21, 0.11, 0.53);
+        let cam = Camera {
+            width: 64,
+            height: 64,
+            fx: 64.0,
+            fy: 64.0,
+            cx: 32.0,
+            cy: 32.0,
+        };
+        for (x, y) in [(-2.0f64, 0.1f64), (0.2, -2.0)] {
+            let yaw = (target.y - y).atan2(target.x - x) + 0.0625;
+            let odom_from_base = crate::geometry::iso_from_xy_yaw(x, y, yaw);
+            let odom_from_camera = odom_from_base * camera_mount([0.0, 0.0, 0.4], 0.0);
+            let camera_from_odom = odom_from_camera.inverse();
+            let (u, v) = cam.project(&(camera_from_odom * target)).unwrap();
+            assert!((u - 36.0).abs() < 1.0 && (v - 28.0).abs() < 1.0, "{u} {v}");
+            let (r, c) = ((v / 8.0) as usize, (u / 8.0) as usize);
+            let mut p = vec![0.0078125f32; 64];
+            p[r * 8 + c] = 0.95;
+            let ev = TileEvidence::from_probabilities(8, 8, 8, &p, 0.0078125);
+            g.integrate(&camera_from_odom, &cam, &ev);
+        }
+        let once = (logit(f64::from(0.95f32)) - logit(0.0078125)) as f32;
+        let hit = g.prior_log_odds() + once + once;
+        let t = g.spec.index(24, 22, 10);
+        let c = g.spec.center(24, 22, 10);
+        assert!((c[0] - 0.225).abs() < 1e-12 && (c[1] - 0.125).abs() < 1e-12 && (c[2] - 0.525).abs() < 1e-12);
+        assert_eq!(g.log_odds[t], hit);
+        let both: Vec<[f64; 3]> = (0..g.spec.cells())
+            .filter(|&i| g.log_odds[i] == hit)
+            .map(|i| {
+                let [a, b, c] = g.spec.ijk(i);
+                g.spec.center(a, b, c)
+            })
+            .collect();
+        // Each tile spans 1/8 rad, about 0.28 m at 2.2 m: the shared cells stay within one
+        // tile footprint of the point.
+        for c in &both {
+            let d = ((c[0] - 0.21).powi(2) + (c[1] - 0.11).powi(2) + (c[2] - 0.53).powi(2)).sqrt();
+            assert!(d < 0.3, "{c:?} is {d} m from the point");
+        }
+    }
+
+    #[test]
+    fn thread_count_does_not_change_the_result() {
+        let run = |threads| {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+            pool.install(|| {
+                let mut g = small_grid();
+                let cam = Camera::with_hfov(64, 48, 1.0);
+                let pose = camera_mount([-0.5, 0.1, 0.6], 0.2).inverse();
+                let p: Vec<f32> = (0..48).map(|i| 0.001 + i as f32 / 50.0).collect();
+                let ev = TileEvidence::from_probabilities(6, 8, 8, &p, 0.01);
+                g.integrate(&pose, &cam, &ev);
+                g.sha256_hex()
+            })
+        };
+        assert_eq!(run(1), run(3));
+    }
+}
