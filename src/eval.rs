@@ -1,1 +1,247 @@
-//! eval: placeholder.
+//! Scoring a fuse report against ground truth: object matching, centroid errors, missed and
+//! spurious objects, voxel IoU, and the error after each frame.
+//!
+//! Invariants: pure functions of the report and the true boxes; matching is greedy by
+//! distance over all pairs sorted by (distance, truth index, object index), so it is
+//! deterministic. No I/O.
+
+use nalgebra::Point3;
+use serde::{Deserialize, Serialize};
+
+use crate::geometry::{Iso3, iso_from_pose};
+use crate::grid::GridSpec;
+use crate::msgs::GroundTruth;
+use crate::objects::Object;
+use crate::report::Report;
+
+/// An estimate farther than this from a true box's centre (or than half the box's diagonal,
+/// if larger) cannot be that box.
+pub const MATCH_GATE_M: f64 = 0.5;
+
+#[derive(Debug, Clone, PartialEq)]
+pub struct TrueObject {
+    pub name: String,
+    pub odom_from_box: Iso3,
+    /// Full edge lengths, metres.
+    pub size_m: [f64; 3],
+}
+
+impl TrueObject {
+    pub fn center_m(&self) -> [f64; 3] {
+        let t = self.odom_from_box.translation.vector;
+        [t.x, t.y, t.z]
+    }
+
+    pub fn contains(&self, p: [f64; 3]) -> bool {
+        let q = self.odom_from_box.inverse() * Point3::new(p[0], p[1], p[2]);
+        (0..3).all(|a| q[a].abs() <= self.size_m[a] / 2.0)
+    }
+
+    fn gate_m(&self) -> f64 {
+        let d = self.size_m.iter().map(|s| s * s).sum::<f64>().sqrt() / 2.0;
+        d.max(MATCH_GATE_M)
+    }
+}
+
+/// The true boxes of a GroundTruth message (boxes with invalid poses are skipped).
+pub fn true_objects(gt: &GroundTruth) -> Vec<TrueObject> {
+    gt.object
+        .iter()
+        .zip(&gt.box_center)
+        .zip(&gt.box_size)
+        .filter_map(|((name, pose), size)| {
+            Some(TrueObject {
+                name: name.clone(),
+                odom_from_box: iso_from_pose(pose)?,
+                size_m: *size,
+            })
+        })
+        .collect()
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Match {
+    pub truth_index: usize,
+    pub name: String,
+    pub object_index: usize,
+    pub error_m: f64,
+    pub centroid_m: [f64; 3],
+    pub truth_center_m: [f64; 3],
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FrameEval {
+    pub index: usize,
+    pub stamp_ns: i64,
+    pub objects: usize,
+    pub matched: usize,
+    pub mean_error_m: Option<f64>,
+    pub max_error_m: Option<f64>,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Evaluation {
+    pub report: String,
+    pub matches: Vec<Match>,
+    pub missed: Vec<String>,
+    pub spurious: Vec<[f64; 3]>,
+    pub voxel_iou: f64,
+    pub per_frame: Vec<FrameEval>,
+}
+
+impl Evaluation {
+    pub fn max_error_m(&self) -> Option<f64> {
+        self.matches.iter().map(|m| m.error_m).reduce(f64::max)
+    }
+}
+
+fn dist(a: [f64; 3], b: [f64; 3]) -> f64 {
+    ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
+}
+
+/// Greedy nearest matching: (matches, unmatched truths, unmatched objects).
+pub fn match_objects(objects: &[Object], truth: &[TrueObject]) -> (Vec<Match>, Vec<usize>, Vec<usize>) {
+    let mut pairs: Vec<(f64, usize, usize)> = Vec::new();
+    for (t, tr) in truth.iter().enumerate() {
+        for (o, ob) in objects.iter().enumerate() {
+            let d = dist(ob.centroid_m, tr.center_m());
+            if d <= tr.gate_m() {
+                pairs.push((d, t, o));
+            }
+        }
+    }
+    pairs.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)).then(a.2.cmp(&b.2)));
+    let mut t_used = vec![false; truth.len()];
+    let mut o_used = vec![false; objects.len()];
+    let mut matches = Vec::new();
+    for (d, t, o) in pairs {
+        if t_used[t] || o_used[o] {
+            continue;
+        }
+        t_used[t] = true;
+        o_used[o] = true;
+        matches.push(Match {
+            truth_index: t,
+            name: truth[t].name.clone(),
+            object_index: o,
+            error_m: d,
+            centroid_m: objects[o].centroid_m,
+            truth_center_m: truth[t].center_m(),
+        });
+    }
+    matches.sort_by_key(|m| m.truth_index);
+    let missed = (0..truth.len()).filter(|&t| !t_used[t]).collect();
+    let spurious = (0..objects.len()).filter(|&o| !o_used[o]).collect();
+    (matches, missed, spurious)
+}
+
+/// IoU of the cells `estimated` (flat indices) against the cells whose centres lie inside a
+/// true box.
+pub fn voxel_iou(spec: &GridSpec, estimated: &[usize], truth: &[TrueObject]) -> f64 {
+    let mut truth_cells = Vec::new();
+    for idx in 0..spec.cells() {
+        let [i, j, k] = spec.ijk(idx);
+        let c = spec.center(i, j, k);
+        if truth.iter().any(|t| t.contains(c)) {
+            truth_cells.push(idx);
+        }
+    }
+    let inter = estimated
+        .iter()
+        .filter(|i| truth_cells.binary_search(i).is_ok())
+        .count();
+    let union = estimated.len() + truth_cells.len() - inter;
+    if union == 0 { 0.0 } else { inter as f64 / union as f64 }
+}
+
+pub fn evaluate(report_name: &str, report: &Report, truth: &[TrueObject]) -> Evaluation {
+    let (matches, missed, spurious) = match_objects(&report.objects, truth);
+    let spec = GridSpec {
+        origin_m: report.grid.origin_m,
+        voxel_size_m: report.grid.voxel_size_m,
+        dims: report.grid.dims,
+    };
+    let per_frame = report
+        .per_frame
+        .iter()
+        .map(|f| {
+            let (m, _, _) = match_objects(&f.objects, truth);
+            let errs: Vec<f64> = m.iter().map(|m| m.error_m).collect();
+            FrameEval {
+                index: f.index,
+                stamp_ns: f.stamp_ns,
+                objects: f.objects.len(),
+                matched: m.len(),
+                mean_error_m: (!errs.is_empty()).then(|| errs.iter().sum::<f64>() / errs.len() as f64),
+                max_error_m: errs.iter().copied().reduce(f64::max),
+            }
+        })
+        .collect();
+    Evaluation {
+        report: report_name.to_owned(),
+        matches,
+        missed: missed.iter().map(|&t| truth[t].name.clone()).collect(),
+        spurious: spurious.iter().map(|&o| report.objects[o].centroid_m).collect(),
+        voxel_iou: voxel_iou(&spec, &report.object_cells, truth),
+        per_frame,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::iso_from_xy_yaw;
+
+    fn obj(c: [f64; 3]) -> Object {
+        Object {
+            centroid_m: c,
+            bbox_min_m: c,
+            bbox_max_m: c,
+            cells: 10,
+            peak_probability: 0.99,
+            mean_probability: 0.9,
+            peak_log_odds: 5.0,
+        }
+    }
+
+    #[test]
+    fn greedy_matching_pairs_nearest_and_reports_the_rest() {
+        let mut b1 = iso_from_xy_yaw(0.0, 0.0, 0.3);
+        b1.translation.z = 0.45;
+        let mut b2 = iso_from_xy_yaw(1.0, 0.0, 0.0);
+        b2.translation.z = 0.45;
+        let truth = vec![
+            TrueObject { name: "chair".into(), odom_from_box: b1, size_m: [0.5, 0.5, 0.9] },
+            TrueObject { name: "chair".into(), odom_from_box: b2, size_m: [0.5, 0.5, 0.9] },
+        ];
+        let objects = vec![obj([0.95, 0.0, 0.45]), obj([0.03, 0.04, 0.45]), obj([3.0, 3.0, 0.5])];
+        let (m, missed, spurious) = match_objects(&objects, &truth);
+        assert_eq!(m.len(), 2);
+        assert_eq!(m[0].object_index, 1);
+        assert!((m[0].error_m - 0.05).abs() < 1e-12);
+        assert!((m[1].error_m - 0.05).abs() < 1e-12);
+        assert!(missed.is_empty());
+        assert_eq!(spurious, vec![2]);
+        // Containment respects the box's yaw.
+        assert!(truth[0].contains([0.2, 0.0, 0.1]));
+        assert!(!truth[0].contains([0.0, 0.0, 0.95]));
+    }
+
+    #[test]
+    fn iou_of_exact_and_half_estimates() {
+        let spec = GridSpec::from_bounds([0.0; 3], [1.0; 3], 0.1).unwrap();
+        let mut b = iso_from_xy_yaw(0.5, 0.5, 0.0);
+        b.translation.z = 0.5;
+        // Box of 0.4 m: cells 3..7 on each axis (centres 0.35..0.65) = 64 cells.
+        let truth = vec![TrueObject { name: "x".into(), odom_from_box: b, size_m: [0.4, 0.4, 0.4] }];
+        let inside: Vec<usize> = (0..spec.cells())
+            .filter(|&i| {
+                let [a, bb, c] = spec.ijk(i);
+                truth[0].contains(spec.center(a, bb, c))
+            })
+            .collect();
+        assert_eq!(inside.len(), 64);
+        assert_eq!(voxel_iou(&spec, &inside, &truth), 1.0);
+        assert_eq!(voxel_iou(&spec, &inside[..32], &truth), 0.5);
+    }
+}

@@ -1,1 +1,602 @@
-//! replay: placeholder.
+//! Deterministic replay of one session into the belief grid: the fuser's event loop.
+//!
+//! Pass 1 reads everything but pixels (intrinsics, the camera mount, /odom, /cmd_vel, ground
+//! truth) so that every frame's pose can be interpolated from the odometry around its stamp.
+//! Pass 2 walks the frames in (log_time, channel id, sequence) order: blur the belief by the
+//! commands executed since the previous frame, classify the frame's tiles, integrate them.
+//! Observers (Rerun, the report) see each step; they cannot change it.
+//!
+//! Invariants: no clock, no randomness, no unordered iteration: the same session, model and
+//! options give a bit-identical grid on every run and thread count. Problems that leave the
+//! rest usable (a frame with no pose, a NaN odometry message) are warnings naming the file,
+//! topic and log time; problems that make the result meaningless are errors.
+
+use nalgebra::Point3;
+use thiserror::Error;
+
+use crate::geometry::{Camera, Iso3, interpolate, iso_from_parts, iso_from_pose, yaw_of};
+use crate::grid::{Grid, GridError, GridSpec, TileEvidence, logit};
+use crate::motion::{BlurMode, Blurrer, Segment, segments_between};
+use crate::msgs::GroundTruth;
+use crate::objects::{Object, ObjectParams, find_objects, find_objects_with_cells};
+use crate::session::{At, Rgb8, Role, SessionError, SessionMsg, SessionReader, fmt_ns};
+
+/// A frame is posed when the odometry reaches within this of its stamp on both sides (or
+/// one side, at the ends of the log).
+pub const POSE_TOLERANCE_NS: i64 = 50_000_000;
+
+/// Tile probabilities of one frame, row-major, tiles aligned at pixel (0, 0).
+#[derive(Debug, Clone, PartialEq)]
+pub struct TileProbs {
+    pub rows: usize,
+    pub cols: usize,
+    pub tile_px: u32,
+    pub p: Vec<f32>,
+}
+
+/// What turns a frame into tile probabilities (the decision tree, or a stand-in in tests).
+pub trait FrameClassifier: Sync {
+    fn classify(&self, img: &Rgb8) -> TileProbs;
+    /// Fraction of positive training examples: the default prior of the grid.
+    fn base_rate(&self) -> f64;
+}
+
+impl FrameClassifier for crate::model::Model {
+    fn classify(&self, img: &Rgb8) -> TileProbs {
+        let m = self.predict(img);
+        TileProbs {
+            rows: m.rows,
+            cols: m.cols,
+            tile_px: m.tile_px,
+            p: m.p,
+        }
+    }
+    fn base_rate(&self) -> f64 {
+        self.base_rate
+    }
+}
+
+#[derive(Debug, Error)]
+pub enum ReplayError {
+    #[error(transparent)]
+    Session(#[from] SessionError),
+    #[error("{at}: {what}")]
+    Invalid { at: At, what: String },
+    #[error("grid: {0}")]
+    Grid(#[from] GridError),
+    #[error("{path}: no frame could be fused ({frames} frame(s) in the session, none with a pose and camera)")]
+    NothingFused { path: String, frames: usize },
+}
+
+/// How to fuse.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct FuseOptions {
+    /// (min, max) corners in `odom`, metres; `None` = derived from the trajectory.
+    pub bounds_m: Option<([f64; 3], [f64; 3])>,
+    pub voxel_size_m: f64,
+    /// Prior probability of a cell; `None` = the classifier's base rate.
+    pub prior: Option<f64>,
+    /// Translational speed noise, m/s (paper: sigma_v).
+    pub sigma_v_mps: f64,
+    /// Rotational speed noise, rad/s (paper: sigma_w).
+    pub sigma_w_radps: f64,
+    pub blur: BlurMode,
+    /// Optional clamp of cell probabilities after each update, e.g. (0.001, 0.999).
+    pub clamp: Option<(f64, f64)>,
+    pub objects: ObjectParams,
+}
+
+impl Default for FuseOptions {
+    fn default() -> Self {
+        Self {
+            bounds_m: None,
+            voxel_size_m: 0.04,
+            prior: None,
+            sigma_v_mps: 0.01,
+            sigma_w_radps: 0.01,
+            blur: BlurMode::LogOdds,
+            clamp: None,
+            objects: ObjectParams::default(),
+        }
+    }
+}
+
+/// Margin around the camera positions for the default bounds, metres.
+pub const DEFAULT_BOUNDS_MARGIN_M: f64 = 0.25;
+/// Smallest side of the default bounds in x and y, metres (the paper's 4 m grid).
+pub const DEFAULT_MIN_SIDE_M: f64 = 4.0;
+
+/// One camera frame of the session, before its pixels are decoded.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FrameRef {
+    /// Index into the reader's raw messages.
+    pub raw_index: usize,
+    pub topic: String,
+    pub log_time_ns: u64,
+    pub stamp_ns: i64,
+}
+
+/// Everything of a session but the pixels, validated.
+#[derive(Debug, Clone)]
+pub struct SessionData {
+    pub path: String,
+    pub camera: Camera,
+    pub camera_frame_id: String,
+    /// base_link -> camera optical frame, from /tf_static.
+    pub base_from_camera: Iso3,
+    /// (stamp, odom_from_base), sorted by stamp.
+    pub odom: Vec<(i64, Iso3)>,
+    /// (stamp, v m/s, w rad/s), sorted by stamp.
+    pub commands: Vec<(i64, f64, f64)>,
+    pub frames: Vec<FrameRef>,
+    pub ground_truth_poses: Vec<(i64, Iso3)>,
+    pub ground_truth: Option<GroundTruth>,
+    pub warnings: Vec<String>,
+}
+
+impl SessionData {
+    /// Pose of base_link in odom at `stamp_ns`, interpolated; `None` when the odometry does
+    /// not reach within [`POSE_TOLERANCE_NS`] of it.
+    pub fn odom_at(&self, stamp_ns: i64) -> Option<Iso3> {
+        pose_at(&self.odom, stamp_ns)
+    }
+
+    pub fn ground_truth_at(&self, stamp_ns: i64) -> Option<Iso3> {
+        pose_at(&self.ground_truth_poses, stamp_ns)
+    }
+
+    /// Default grid bounds: the box around every camera position, padded by
+    /// [`DEFAULT_BOUNDS_MARGIN_M`] and widened to at least [`DEFAULT_MIN_SIDE_M`] in x and y;
+    /// z from the floor (0) to 0.5 m above the highest camera. A robot that looks at an object
+    /// from several sides (the method's premise) has the object inside this box.
+    pub fn default_bounds(&self) -> Option<([f64; 3], [f64; 3])> {
+        let mut lo = [f64::INFINITY; 3];
+        let mut hi = [f64::NEG_INFINITY; 3];
+        for f in &self.frames {
+            if let Some(p) = self.odom_at(f.stamp_ns) {
+                let c = (p * self.base_from_camera).translation.vector;
+                for a in 0..3 {
+                    lo[a] = lo[a].min(c[a]);
+                    hi[a] = hi[a].max(c[a]);
+                }
+            }
+        }
+        if !lo[0].is_finite() {
+            return None;
+        }
+        for a in 0..2 {
+            lo[a] -= DEFAULT_BOUNDS_MARGIN_M;
+            hi[a] += DEFAULT_BOUNDS_MARGIN_M;
+            let side = hi[a] - lo[a];
+            if side < DEFAULT_MIN_SIDE_M {
+                let grow = (DEFAULT_MIN_SIDE_M - side) / 2.0;
+                lo[a] -= grow;
+                hi[a] += grow;
+            }
+        }
+        let top = hi[2] + 0.5;
+        Some(([lo[0], lo[1], 0.0], [hi[0], hi[1], top]))
+    }
+}
+
+fn pose_at(track: &[(i64, Iso3)], stamp_ns: i64) -> Option<Iso3> {
+    let i = track.partition_point(|(t, _)| *t < stamp_ns);
+    match (i.checked_sub(1).and_then(|j| track.get(j)), track.get(i)) {
+        (_, Some((t, p))) if *t == stamp_ns => Some(*p),
+        (Some((t0, p0)), Some((t1, p1))) => {
+            if stamp_ns - t0 > POSE_TOLERANCE_NS && t1 - stamp_ns > POSE_TOLERANCE_NS {
+                // A gap in the odometry: interpolating across it would invent a pose.
+                return None;
+            }
+            let s = (stamp_ns - t0) as f64 / (t1 - t0) as f64;
+            Some(interpolate(p0, p1, s))
+        }
+        (Some((t0, p0)), None) => (stamp_ns - t0 <= POSE_TOLERANCE_NS).then_some(*p0),
+        (None, Some((t1, p1))) => (t1 - stamp_ns <= POSE_TOLERANCE_NS).then_some(*p1),
+        (None, None) => None,
+    }
+}
+
+/// Pass 1: reads and validates everything but pixels.
+pub fn load_session(reader: &SessionReader) -> Result<SessionData, ReplayError> {
+    reader.require(Role::CameraInfo)?;
+    reader.require(Role::TfStatic)?;
+    reader.require(Role::Odom)?;
+    reader.require_frames()?;
+    let path = reader.path().display().to_string();
+    let mut warnings: Vec<String> = reader.warnings.clone();
+    let mut camera: Option<(Camera, String)> = None;
+    let mut transforms = Vec::new();
+    let mut odom: Vec<(i64, Iso3)> = Vec::new();
+    let mut commands = Vec::new();
+    let mut frames = Vec::new();
+    let mut gt_poses = Vec::new();
+    let mut ground_truth = None;
+    for (raw_index, raw) in reader.raw_messages().iter().enumerate() {
+        let Some(m) = reader.decode(raw)? else {
+            continue;
+        };
+        let at = || reader.at(Some(&m.topic), m.log_time_ns);
+        match m.msg {
+            SessionMsg::CameraInfo(ci) => {
+                let cam = Camera::from_info(&ci).ok_or_else(|| ReplayError::Invalid {
+                    at: at(),
+                    what: format!(
+                        "CameraInfo is not a usable pinhole camera (width {}, height {}, K {:?})",
+                        ci.width, ci.height, ci.k
+                    ),
+                })?;
+                match &camera {
+                    None => camera = Some((cam, ci.header.frame_id.clone())),
+                    Some((c, _)) if *c != cam => {
+                        return Err(ReplayError::Invalid {
+                            at: at(),
+                            what: "CameraInfo changes during the session; objloc fuses one camera".into(),
+                        });
+                    }
+                    Some(_) => {}
+                }
+            }
+            SessionMsg::TfStatic(tf) => {
+                for t in tf.transforms {
+                    let iso = iso_from_parts(t.translation, t.rotation_xyzw).ok_or_else(|| {
+                        ReplayError::Invalid {
+                            at: at(),
+                            what: format!(
+                                "transform {} -> {} is not finite or has a zero quaternion",
+                                t.header.frame_id, t.child_frame_id
+                            ),
+                        }
+                    })?;
+                    transforms.push((t.header.frame_id, t.child_frame_id, iso));
+                }
+            }
+            SessionMsg::Odom(o) => match iso_from_pose(&o.pose) {
+                Some(p) => odom.push((o.header.stamp_ns, p)),
+                None => warnings.push(format!(
+                    "{}: pose is not finite or has a zero quaternion; message skipped",
+                    at()
+                )),
+            },
+            SessionMsg::CmdVel(c) => {
+                let (v, w) = (c.twist.linear[0], c.twist.angular[2]);
+                if v.is_finite() && w.is_finite() {
+                    commands.push((c.header.stamp_ns, v, w));
+                } else {
+                    warnings.push(format!("{}: twist is not finite; command skipped", at()));
+                }
+            }
+            SessionMsg::Frame(f) => frames.push(FrameRef {
+                raw_index,
+                topic: m.topic.clone(),
+                log_time_ns: m.log_time_ns,
+                stamp_ns: f.stamp_ns,
+            }),
+            SessionMsg::GroundTruthPose(p) => {
+                if let Some(iso) = iso_from_pose(&p.pose) {
+                    gt_poses.push((p.header.stamp_ns, iso));
+                }
+            }
+            SessionMsg::GroundTruthObjects(g) => ground_truth = Some(g),
+            SessionMsg::Label(_) => {}
+        }
+    }
+    let (camera, camera_frame_id) = camera.ok_or_else(|| ReplayError::Invalid {
+        at: At {
+            path: reader.path().to_owned(),
+            topic: Some(reader.topics().camera_info.clone()),
+            log_time_ns: None,
+        },
+        what: "no CameraInfo".into(),
+    })?;
+    // The mount: the transform to the camera's frame; a bag with a single static transform
+    // is taken to mean that one.
+    let mount = transforms
+        .iter()
+        .find(|(_, child, _)| *child == camera_frame_id)
+        .or_else(|| (transforms.len() == 1).then(|| &transforms[0]))
+        .map(|(_, _, iso)| *iso)
+        .ok_or_else(|| ReplayError::Invalid {
+            at: At {
+                path: reader.path().to_owned(),
+                topic: Some(reader.topics().tf_static.clone()),
+                log_time_ns: None,
+            },
+            what: format!(
+                "no transform to the camera frame {camera_frame_id:?} (have: {})",
+                transforms
+                    .iter()
+                    .map(|(p, c, _)| format!("{p} -> {c}"))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ),
+        })?;
+    if odom.windows(2).any(|w| w[1].0 < w[0].0) {
+        warnings.push(format!(
+            "{path}: {} stamps go backwards; poses sorted by stamp",
+            reader.topics().odom
+        ));
+    }
+    odom.sort_by_key(|(t, _)| *t);
+    commands.sort_by_key(|(t, _, _)| *t);
+    gt_poses.sort_by_key(|(t, _)| *t);
+    Ok(SessionData {
+        path,
+        camera,
+        camera_frame_id,
+        base_from_camera: mount,
+        odom,
+        commands,
+        frames,
+        ground_truth_poses: gt_poses,
+        ground_truth,
+        warnings,
+    })
+}
+
+/// One fused frame, as observers see it.
+#[derive(Debug, Clone)]
+pub struct FrameStep {
+    /// 0-based count of fused frames.
+    pub index: usize,
+    pub frame: FrameRef,
+    pub odom_from_camera: Iso3,
+    pub odom_from_base: Iso3,
+    pub image: Rgb8,
+    pub probs: TileProbs,
+    /// Commands blurred into the belief before this frame.
+    pub segments: Vec<Segment>,
+    pub cells_updated: usize,
+}
+
+/// Sees the replay; cannot change it.
+pub trait Observer {
+    fn on_start(&mut self, _data: &SessionData, _grid: &Grid) -> anyhow::Result<()> {
+        Ok(())
+    }
+    fn on_frame(&mut self, _data: &SessionData, _step: &FrameStep, _grid: &Grid) -> anyhow::Result<()> {
+        Ok(())
+    }
+}
+
+/// The result of a replay.
+#[derive(Debug)]
+pub struct Outcome {
+    pub data: SessionData,
+    pub grid: Grid,
+    pub objects: Vec<Object>,
+    /// Flat indices of the final objects' cells, ascending.
+    pub object_cells: Vec<usize>,
+    pub frames_fused: usize,
+    /// Per fused frame: stamp and objects after it.
+    pub per_frame: Vec<FrameSummary>,
+    pub warnings: Vec<String>,
+}
+
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct FrameSummary {
+    pub index: usize,
+    pub stamp_ns: i64,
+    pub log_time_ns: u64,
+    pub position_m: [f64; 3],
+    pub yaw_rad: f64,
+    pub cells_updated: usize,
+    pub max_probability: f64,
+    pub objects: Vec<Object>,
+}
+
+/// The fuser state: grid, blur scratch and options. Takes typed values, returns state.
+pub struct Fuser {
+    pub grid: Grid,
+    pub options: FuseOptions,
+    blurrer: Blurrer,
+}
+
+impl Fuser {
+    pub fn new(spec: GridSpec, prior: f64, options: FuseOptions) -> Result<Self, GridError> {
+        let mut grid = Grid::new(spec, prior)?;
+        if let Some((lo, hi)) = options.clamp {
+            if !(lo > 0.0 && hi < 1.0 && lo < hi) {
+                return Err(GridError::Prior { prior: lo });
+            }
+            grid.clamp = Some((logit(lo) as f32, logit(hi) as f32));
+        }
+        Ok(Self {
+            grid,
+            options,
+            blurrer: Blurrer::default(),
+        })
+    }
+
+    /// Blurs the belief by one command segment; `odom_from_base` is the pose at its start.
+    pub fn blur(&mut self, seg: &Segment, odom_from_base: &Iso3) {
+        let t = seg.duration_s();
+        if seg.v_mps != 0.0 {
+            let yaw = yaw_of(odom_from_base);
+            self.blurrer.translate(
+                &mut self.grid,
+                [yaw.cos(), yaw.sin()],
+                self.options.sigma_v_mps * t,
+                self.options.blur,
+            );
+        }
+        if seg.w_radps != 0.0 {
+            let c = odom_from_base.translation.vector;
+            self.blurrer.rotate(
+                &mut self.grid,
+                [c.x, c.y],
+                self.options.sigma_w_radps * t,
+                self.options.blur,
+            );
+        }
+    }
+
+    /// Integrates one frame's tile probabilities seen from `odom_from_camera`.
+    pub fn integrate(&mut self, odom_from_camera: &Iso3, camera: &Camera, probs: &TileProbs) -> usize {
+        let ev = TileEvidence::from_probabilities(probs.rows, probs.cols, probs.tile_px, &probs.p, self.grid.prior);
+        self.grid.integrate(&odom_from_camera.inverse(), camera, &ev)
+    }
+}
+
+/// Replays `reader` with `classifier` into a grid, telling `observers` each step.
+pub fn replay(
+    reader: &SessionReader,
+    classifier: &dyn FrameClassifier,
+    options: &FuseOptions,
+    observers: &mut [&mut dyn Observer],
+) -> Result<Outcome, ReplayError> {
+    let data = load_session(reader)?;
+    let mut warnings = data.warnings.clone();
+    let (lo, hi) = match options.bounds_m {
+        Some(b) => b,
+        None => data.default_bounds().ok_or_else(|| ReplayError::NothingFused {
+            path: data.path.clone(),
+            frames: data.frames.len(),
+        })?,
+    };
+    let spec = GridSpec::from_bounds(lo, hi, options.voxel_size_m)?;
+    let prior = options.prior.unwrap_or_else(|| classifier.base_rate());
+    let mut fuser = Fuser::new(spec, prior, options.clone())?;
+    for o in observers.iter_mut() {
+        o.on_start(&data, &fuser.grid).map_err(|e| ReplayError::Invalid {
+            at: At {
+                path: reader.path().to_owned(),
+                topic: None,
+                log_time_ns: None,
+            },
+            what: format!("observer failed: {e:#}"),
+        })?;
+    }
+    let mut last_stamp: Option<i64> = None;
+    let mut per_frame = Vec::new();
+    let mut fused = 0usize;
+    for fr in &data.frames {
+        let at = || reader.at(Some(&fr.topic), fr.log_time_ns);
+        let Some(odom_from_base) = data.odom_at(fr.stamp_ns) else {
+            warnings.push(format!(
+                "{}: no {} pose within 50 ms of stamp {}; frame skipped",
+                at(),
+                reader.topics().odom,
+                fmt_ns(fr.stamp_ns.max(0) as u64)
+            ));
+            continue;
+        };
+        if let Some(prev) = last_stamp {
+            if fr.stamp_ns < prev {
+                warnings.push(format!("{}: frame stamp goes backwards; frame skipped", at()));
+                continue;
+            }
+        }
+        let raw = &reader.raw_messages()[fr.raw_index];
+        let frame = match reader.decode(raw)?.map(|m| m.msg) {
+            Some(SessionMsg::Frame(f)) => f,
+            _ => continue,
+        };
+        let image = frame
+            .decode_rgb8()
+            .map_err(|what| ReplayError::Invalid { at: at(), what })?;
+        if (image.width, image.height) != (data.camera.width, data.camera.height) {
+            return Err(ReplayError::Invalid {
+                at: at(),
+                what: format!(
+                    "image is {} x {} but CameraInfo says {} x {}",
+                    image.width, image.height, data.camera.width, data.camera.height
+                ),
+            });
+        }
+        // Motion since the previous frame blurs the belief (nothing before the first one:
+        // the first frame anchors the belief).
+        let segments = match last_stamp {
+            Some(prev) => segments_between(&data.commands, prev, fr.stamp_ns),
+            None => Vec::new(),
+        };
+        for seg in &segments {
+            let pose = data.odom_at(seg.start_ns).unwrap_or(odom_from_base);
+            fuser.blur(seg, &pose);
+        }
+        let probs = classifier.classify(&image);
+        let odom_from_camera = odom_from_base * data.base_from_camera;
+        let cells_updated = fuser.integrate(&odom_from_camera, &data.camera, &probs);
+        last_stamp = Some(fr.stamp_ns);
+        let step = FrameStep {
+            index: fused,
+            frame: fr.clone(),
+            odom_from_camera,
+            odom_from_base,
+            image,
+            probs,
+            segments,
+            cells_updated,
+        };
+        for o in observers.iter_mut() {
+            o.on_frame(&data, &step, &fuser.grid).map_err(|e| ReplayError::Invalid {
+                at: at(),
+                what: format!("observer failed: {e:#}"),
+            })?;
+        }
+        let objects = find_objects(&fuser.grid, &options.objects);
+        let max_l = fuser.grid.log_odds.iter().copied().fold(f32::NEG_INFINITY, f32::max);
+        let base = odom_from_base.translation.vector;
+        per_frame.push(FrameSummary {
+            index: fused,
+            stamp_ns: fr.stamp_ns,
+            log_time_ns: fr.log_time_ns,
+            position_m: [base.x, base.y, base.z],
+            yaw_rad: yaw_of(&odom_from_base),
+            cells_updated,
+            max_probability: crate::grid::sigmoid(f64::from(max_l)),
+            objects,
+        });
+        fused += 1;
+    }
+    if fused == 0 {
+        return Err(ReplayError::NothingFused {
+            path: data.path.clone(),
+            frames: data.frames.len(),
+        });
+    }
+    let with_cells = find_objects_with_cells(&fuser.grid, &options.objects);
+    let mut object_cells: Vec<usize> = with_cells.iter().flat_map(|(_, c)| c.iter().copied()).collect();
+    object_cells.sort_unstable();
+    let objects = with_cells.into_iter().map(|(o, _)| o).collect();
+    Ok(Outcome {
+        data,
+        object_cells,
+        grid: fuser.grid,
+        objects,
+        frames_fused: fused,
+        per_frame,
+        warnings,
+    })
+}
+
+/// Position of a point of `odom` in the camera image at `odom_from_camera`, if in front.
+pub fn project_point(camera: &Camera, odom_from_camera: &Iso3, p: [f64; 3]) -> Option<(f64, f64)> {
+    camera.project(&(odom_from_camera.inverse() * Point3::new(p[0], p[1], p[2])))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::iso_from_xy_yaw;
+
+    #[test]
+    fn pose_interpolates_and_refuses_gaps() {
+        let track = vec![
+            (0, iso_from_xy_yaw(0.0, 0.0, 0.0)),
+            (100_000_000, iso_from_xy_yaw(1.0, 0.0, 0.0)),
+            (1_100_000_000, iso_from_xy_yaw(2.0, 0.0, 0.0)),
+        ];
+        let p = pose_at(&track, 25_000_000).unwrap();
+        assert!((p.translation.x - 0.25).abs() < 1e-12);
+        // 40 ms after a pose, within tolerance: interpolated across the long interval.
+        let p = pose_at(&track, 140_000_000).unwrap();
+        assert!((p.translation.x - 1.04).abs() < 1e-12);
+        // 0.5 s from both ends: a gap, no pose.
+        assert!(pose_at(&track, 600_000_000).is_none());
+        // Within 50 ms past the end: the last pose; beyond: none.
+        assert!(pose_at(&track, 1_140_000_000).is_some());
+        assert!(pose_at(&track, 1_160_000_000).is_none());
+        assert!(pose_at(&track, -60_000_000).is_none());
+    }
+}

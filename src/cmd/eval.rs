@@ -1,8 +1,108 @@
-//! `objloc eval`: placeholder until its issue lands.
+//! `objloc eval SESSION --report REPORT.json [--report ...]`: score fuse reports against the
+//! session's /ground_truth/objects, side by side.
+
+use std::path::PathBuf;
+
+use anyhow::Context;
+
+use objloc::eval::{Evaluation, evaluate, true_objects};
+use objloc::report::Report;
+use objloc::session::{SessionMsg, SessionReader};
+
+use super::TopicArgs;
 
 #[derive(Debug, clap::Args)]
-pub struct Args {}
+pub struct Args {
+    /// The session the reports were fused from (for its ground truth).
+    pub session: PathBuf,
+    /// A report from `objloc fuse --report`. Repeat to compare several.
+    #[arg(long = "report", required = true, value_name = "REPORT.json")]
+    pub reports: Vec<PathBuf>,
+    /// Print the evaluations as JSON.
+    #[arg(long)]
+    pub json: bool,
+    #[command(flatten)]
+    pub topics: TopicArgs,
+}
 
-pub fn run(_args: Args) -> anyhow::Result<()> {
-    anyhow::bail!("objloc eval is not implemented yet")
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let reader = SessionReader::open(&args.session, args.topics.topics()?)
+        .with_context(|| format!("eval {}", args.session.display()))?;
+    let mut gt = None;
+    for m in reader.messages() {
+        if let SessionMsg::GroundTruthObjects(g) = m.context("reading ground truth")?.msg {
+            gt = Some(g);
+        }
+    }
+    let gt = gt.with_context(|| {
+        format!(
+            "{}: no {} message: this session has no ground truth to score against",
+            args.session.display(),
+            reader.topics().ground_truth_objects
+        )
+    })?;
+    let truth = true_objects(&gt);
+    let mut evals = Vec::new();
+    for path in &args.reports {
+        let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+        let report: Report = serde_json::from_str(&text)
+            .with_context(|| format!("{}: not an objloc fuse report", path.display()))?;
+        evals.push(evaluate(&path.display().to_string(), &report, &truth));
+    }
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&evals)?);
+    } else {
+        for e in &evals {
+            print_eval(e);
+        }
+        if evals.len() > 1 {
+            println!("comparison:");
+            println!("  {:<40} {:>8} {:>7} {:>9} {:>8}", "report", "matched", "missed", "spurious", "max err");
+            for e in &evals {
+                println!(
+                    "  {:<40} {:>8} {:>7} {:>9} {:>8}",
+                    e.report,
+                    e.matches.len(),
+                    e.missed.len(),
+                    e.spurious.len(),
+                    e.max_error_m().map(|x| format!("{x:.3} m")).unwrap_or_else(|| "-".into())
+                );
+            }
+        }
+    }
+    Ok(())
+}
+
+fn print_eval(e: &Evaluation) {
+    println!("{}:", e.report);
+    for m in &e.matches {
+        println!(
+            "  {} found at ({:.3}, {:.3}, {:.3}), true centre ({:.3}, {:.3}, {:.3}): error {:.3} m",
+            m.name,
+            m.centroid_m[0],
+            m.centroid_m[1],
+            m.centroid_m[2],
+            m.truth_center_m[0],
+            m.truth_center_m[1],
+            m.truth_center_m[2],
+            m.error_m
+        );
+    }
+    for name in &e.missed {
+        println!("  missed: {name}");
+    }
+    for c in &e.spurious {
+        println!("  spurious object at ({:.3}, {:.3}, {:.3})", c[0], c[1], c[2]);
+    }
+    println!("  voxel IoU of the thresholded belief: {:.3}", e.voxel_iou);
+    println!("  after each frame:");
+    for f in &e.per_frame {
+        println!(
+            "    frame {:>3}: {} object(s), {} matched, mean error {}",
+            f.index,
+            f.objects,
+            f.matched,
+            f.mean_error_m.map(|x| format!("{x:.3} m")).unwrap_or_else(|| "-".into())
+        );
+    }
 }
