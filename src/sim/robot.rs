@@ -1,0 +1,330 @@
+//! The semi-holonomic robot (like the paper's B21): it either rotates in place or drives
+//! straight, one command at a time, each held for a whole number of milliseconds.
+//!
+//! Invariants: the nominal (odometry) pose integrates exactly the commanded twist over the
+//! command's duration; the true pose integrates the same twist scaled by one Gaussian factor
+//! per command (`1 + sigma * N(0, 1)`), and nothing else, so the fuser's motion model is
+//! exactly right. All randomness comes from a seeded [`Rng`]; the timeline is a pure function
+//! of (stops, speeds, noise, seed).
+
+use std::f64::consts::PI;
+
+/// Pause between one command's end and the next command's start.
+pub const SETTLE_NS: i64 = 300_000_000;
+/// A frame is taken this long after the robot stops, and the next command starts this long
+/// after the frame.
+pub const FRAME_GAP_NS: i64 = 500_000_000;
+/// Odometry rate while moving.
+pub const ODOM_PERIOD_NS: i64 = 100_000_000;
+
+/// SplitMix64: tiny, seedable, identical on every platform.
+#[derive(Debug, Clone)]
+pub struct Rng(u64);
+
+impl Rng {
+    pub fn new(seed: u64) -> Self {
+        Self(seed)
+    }
+    pub fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+    /// Uniform in (0, 1].
+    pub fn uniform(&mut self) -> f64 {
+        ((self.next_u64() >> 11) + 1) as f64 * (1.0 / (1u64 << 53) as f64)
+    }
+    /// Standard normal (Box-Muller, one value per call).
+    pub fn normal(&mut self) -> f64 {
+        let u1 = self.uniform();
+        let u2 = self.uniform();
+        (-2.0 * u1.ln()).sqrt() * (2.0 * PI * u2).cos()
+    }
+}
+
+/// A planar pose in odom: metres and radians.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Pose2 {
+    pub x_m: f64,
+    pub y_m: f64,
+    pub yaw_rad: f64,
+}
+
+/// Relative standard deviations of the executed speeds.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SpeedNoise {
+    pub trans_rel_sigma: f64,
+    pub rot_rel_sigma: f64,
+}
+
+impl Default for SpeedNoise {
+    fn default() -> Self {
+        Self {
+            trans_rel_sigma: 0.01,
+            rot_rel_sigma: 0.006,
+        }
+    }
+}
+
+/// Where the robot stops to take a frame; `background` frames are rendered without the target.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Stop {
+    pub pose: Pose2,
+    pub background: bool,
+}
+
+/// Something that happens at `stamp_ns` (all timeline events are in time order).
+#[derive(Debug, Clone, PartialEq)]
+pub enum Event {
+    /// A command starts (non-zero twist) or ends (zero twist).
+    CmdVel {
+        stamp_ns: i64,
+        linear_m_s: f64,
+        angular_rad_s: f64,
+    },
+    /// Odometry (nominal) and ground-truth poses at the same stamp, with the nominal twist.
+    Pose {
+        stamp_ns: i64,
+        nominal: Pose2,
+        truth: Pose2,
+        linear_m_s: f64,
+        angular_rad_s: f64,
+    },
+    /// The robot is still; take frame `index` (into the stops).
+    Frame {
+        stamp_ns: i64,
+        index: usize,
+        background: bool,
+        nominal: Pose2,
+        truth: Pose2,
+    },
+}
+
+impl Event {
+    pub fn stamp_ns(&self) -> i64 {
+        match self {
+            Event::CmdVel { stamp_ns, .. } | Event::Pose { stamp_ns, .. } | Event::Frame { stamp_ns, .. } => *stamp_ns,
+        }
+    }
+}
+
+/// Angle wrapped into (-pi, pi].
+pub fn wrap_angle(a: f64) -> f64 {
+    let w = (a + PI).rem_euclid(2.0 * PI) - PI;
+    if w <= -PI { w + 2.0 * PI } else { w }
+}
+
+#[derive(Debug, Clone, Copy)]
+enum Command {
+    Rotate { angle_rad: f64 },
+    Drive { distance_m: f64 },
+}
+
+/// Simulates the robot from `stops[0]` (where it starts, odometry = truth) through every
+/// stop, taking one frame at each. Returns the events in time order.
+pub fn simulate(
+    stops: &[Stop],
+    start_ns: i64,
+    drive_speed_m_s: f64,
+    turn_speed_rad_s: f64,
+    noise: SpeedNoise,
+    rng: &mut Rng,
+) -> Vec<Event> {
+    let mut events = Vec::new();
+    let Some(first) = stops.first() else {
+        return events;
+    };
+    let mut nominal = first.pose;
+    let mut truth = first.pose;
+    let mut t = start_ns;
+    events.push(Event::Pose {
+        stamp_ns: t,
+        nominal,
+        truth,
+        linear_m_s: 0.0,
+        angular_rad_s: 0.0,
+    });
+    t += 2 * FRAME_GAP_NS;
+    for (index, stop) in stops.iter().enumerate() {
+        if index > 0 {
+            // Plan from where odometry believes the robot is: rotate, drive, rotate.
+            let dx = stop.pose.x_m - nominal.x_m;
+            let dy = stop.pose.y_m - nominal.y_m;
+            let dist = dx.hypot(dy);
+            let mut commands = Vec::new();
+            let mut heading = nominal.yaw_rad;
+            if dist > 1e-3 {
+                let bearing = dy.atan2(dx);
+                commands.push(Command::Rotate {
+                    angle_rad: wrap_angle(bearing - heading),
+                });
+                commands.push(Command::Drive { distance_m: dist });
+                heading = bearing;
+            }
+            commands.push(Command::Rotate {
+                angle_rad: wrap_angle(stop.pose.yaw_rad - heading),
+            });
+            for c in commands {
+                let (amount, speed, sigma) = match c {
+                    Command::Rotate { angle_rad } => (angle_rad, turn_speed_rad_s, noise.rot_rel_sigma),
+                    Command::Drive { distance_m } => (distance_m, drive_speed_m_s, noise.trans_rel_sigma),
+                };
+                let duration_ms = (amount.abs() / speed * 1000.0).ceil();
+                if duration_ms < 1.0 {
+                    continue;
+                }
+                let duration_ns = duration_ms as i64 * 1_000_000;
+                // Nominal speed reaches the planned amount exactly in whole milliseconds.
+                let nominal_speed = amount / (duration_ms / 1000.0);
+                let factor = 1.0 + sigma * rng.normal();
+                let (lin, ang) = match c {
+                    Command::Rotate { .. } => (0.0, nominal_speed),
+                    Command::Drive { .. } => (nominal_speed, 0.0),
+                };
+                let (n0, t0, start) = (nominal, truth, t);
+                events.push(Event::CmdVel {
+                    stamp_ns: start,
+                    linear_m_s: lin,
+                    angular_rad_s: ang,
+                });
+                events.push(Event::Pose {
+                    stamp_ns: start,
+                    nominal: n0,
+                    truth: t0,
+                    linear_m_s: lin,
+                    angular_rad_s: ang,
+                });
+                let at = |dt_ns: i64, p: Pose2, scale: f64| -> Pose2 {
+                    let dt = dt_ns as f64 * 1e-9;
+                    Pose2 {
+                        x_m: p.x_m + lin * scale * dt * p.yaw_rad.cos(),
+                        y_m: p.y_m + lin * scale * dt * p.yaw_rad.sin(),
+                        yaw_rad: wrap_angle(p.yaw_rad + ang * scale * dt),
+                    }
+                };
+                let mut k = 1;
+                while k * ODOM_PERIOD_NS < duration_ns {
+                    let dt = k * ODOM_PERIOD_NS;
+                    events.push(Event::Pose {
+                        stamp_ns: start + dt,
+                        nominal: at(dt, n0, 1.0),
+                        truth: at(dt, t0, factor),
+                        linear_m_s: lin,
+                        angular_rad_s: ang,
+                    });
+                    k += 1;
+                }
+                nominal = at(duration_ns, n0, 1.0);
+                truth = at(duration_ns, t0, factor);
+                t = start + duration_ns;
+                events.push(Event::CmdVel {
+                    stamp_ns: t,
+                    linear_m_s: 0.0,
+                    angular_rad_s: 0.0,
+                });
+                events.push(Event::Pose {
+                    stamp_ns: t,
+                    nominal,
+                    truth,
+                    linear_m_s: 0.0,
+                    angular_rad_s: 0.0,
+                });
+                t += SETTLE_NS;
+            }
+            t += FRAME_GAP_NS - SETTLE_NS;
+        }
+        events.push(Event::Frame {
+            stamp_ns: t,
+            index,
+            background: stop.background,
+            nominal,
+            truth,
+        });
+        t += FRAME_GAP_NS;
+    }
+    events
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn stop(x: f64, y: f64, yaw: f64) -> Stop {
+        Stop {
+            pose: Pose2 {
+                x_m: x,
+                y_m: y,
+                yaw_rad: yaw,
+            },
+            background: false,
+        }
+    }
+
+    #[test]
+    fn noiseless_run_reaches_each_stop_with_rotate_drive_rotate() {
+        let stops = [stop(0.0, 0.0, 0.0), stop(0.0, 0.6, PI)];
+        let noise = SpeedNoise {
+            trans_rel_sigma: 0.0,
+            rot_rel_sigma: 0.0,
+        };
+        let ev = simulate(&stops, 1_000_000_000, 0.3, 0.5, noise, &mut Rng::new(1));
+        let cmds: Vec<(i64, f64, f64)> = ev
+            .iter()
+            .filter_map(|e| match e {
+                Event::CmdVel {
+                    stamp_ns,
+                    linear_m_s,
+                    angular_rad_s,
+                } => Some((*stamp_ns, *linear_m_s, *angular_rad_s)),
+                _ => None,
+            })
+            .collect();
+        // Rotate +90 deg: ceil(pi/2 / 0.5 s) = 3142 ms; drive 0.6 m at 0.3 = 2000 ms; rotate +90.
+        assert_eq!(cmds.len(), 6);
+        let first_frame = 1_000_000_000 + 1_000_000_000;
+        let c0 = first_frame + FRAME_GAP_NS;
+        assert_eq!(cmds[0].0, c0);
+        assert!((cmds[0].2 - (PI / 2.0) / 3.142).abs() < 1e-12);
+        assert_eq!(cmds[1], (c0 + 3_142_000_000, 0.0, 0.0));
+        let c2 = c0 + 3_142_000_000 + SETTLE_NS;
+        assert_eq!(cmds[2].0, c2);
+        assert!((cmds[2].1 - 0.3).abs() < 1e-12 && cmds[2].2 == 0.0);
+        let Some(Event::Frame { nominal, truth, stamp_ns, .. }) = ev.last() else {
+            panic!("last event is not a frame")
+        };
+        assert!(nominal.x_m.abs() < 1e-12 && (nominal.y_m - 0.6).abs() < 1e-12);
+        assert!((wrap_angle(nominal.yaw_rad - PI)).abs() < 1e-12);
+        assert_eq!(nominal, truth);
+        // last rotate ends at c2 + 2000 ms + settle + 3142 ms; frame FRAME_GAP after.
+        assert_eq!(*stamp_ns, c2 + 2_000_000_000 + SETTLE_NS + 3_142_000_000 + FRAME_GAP_NS);
+        // Time never goes backwards.
+        assert!(ev.windows(2).all(|w| w[0].stamp_ns() <= w[1].stamp_ns()));
+    }
+
+    #[test]
+    fn truth_differs_by_the_speed_factor_only() {
+        let stops = [stop(0.0, 0.0, 0.0), stop(2.0, 0.0, 0.0)];
+        let noise = SpeedNoise {
+            trans_rel_sigma: 0.05,
+            rot_rel_sigma: 0.0,
+        };
+        let ev = simulate(&stops, 0, 0.25, 0.5, noise, &mut Rng::new(9));
+        let mut rng = Rng::new(9);
+        // Straight ahead: no rotation commands take a draw before the drive... except the
+        // zero-angle rotations, which are skipped before drawing.
+        let factor = 1.0 + 0.05 * rng.normal();
+        let Some(Event::Frame { nominal, truth, .. }) = ev.last() else {
+            panic!()
+        };
+        assert!((nominal.x_m - 2.0).abs() < 1e-12);
+        assert!((truth.x_m - 2.0 * factor).abs() < 1e-12, "{} {factor}", truth.x_m);
+    }
+
+    #[test]
+    fn wrap() {
+        assert!((wrap_angle(3.0 * PI / 2.0) + PI / 2.0).abs() < 1e-12);
+        assert!((wrap_angle(-PI) - PI).abs() < 1e-12);
+    }
+}

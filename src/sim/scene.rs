@@ -1,0 +1,288 @@
+//! Scene files: the room, lights, camera mount, primitives (with the object each belongs to)
+//! and the robot's path, as JSON (schema in `schemas/scene.md`).
+//!
+//! Invariants: a [`Scene`] that passed [`Scene::validate`] has finite, positive sizes, colours
+//! in [0, 1], and at least one primitive of its `target` object, so the renderer and the path
+//! planner never meet a degenerate value. Unknown JSON fields are errors (typos do not pass
+//! silently).
+
+use serde::{Deserialize, Serialize};
+
+/// Built-in scene names, in the order `objloc record sim --help` lists them.
+pub const BUILTIN_SCENES: [&str; 3] = ["chair", "bottle", "two-chairs"];
+
+/// A built-in scene by name, or `None`.
+pub fn builtin_json(name: &str) -> Option<&'static str> {
+    match name {
+        "chair" => Some(include_str!("scenes/chair.json")),
+        "bottle" => Some(include_str!("scenes/bottle.json")),
+        "two-chairs" => Some(include_str!("scenes/two-chairs.json")),
+        _ => None,
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Scene {
+    pub name: String,
+    /// The object that train sessions label and remove for background frames.
+    pub target: String,
+    pub room: Room,
+    pub light: Light,
+    pub camera: CameraSpec,
+    pub robot: RobotSpec,
+    pub primitives: Vec<Primitive>,
+    pub path: PathSpec,
+}
+
+/// An axis-aligned room centred on the odom origin in x and y, floor at z = 0.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Room {
+    /// Full extents [x, y, z] in metres.
+    pub size_m: [f64; 3],
+    pub floor: Material,
+    pub ceiling: Material,
+    /// Walls at x min, x max, y min, y max.
+    pub walls: [Material; 4],
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Light {
+    /// Direction from the scene towards the light (any length), in odom.
+    pub direction: [f64; 3],
+    /// Radiance scale of the directional light.
+    pub intensity: f64,
+    /// Radiance that reaches every surface, shadowed or not.
+    pub ambient: f64,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CameraSpec {
+    pub width: u32,
+    pub height: u32,
+    pub hfov_deg: f64,
+    /// Camera position in base_link.
+    pub mount_m: [f64; 3],
+    pub pitch_down_deg: f64,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RobotSpec {
+    pub drive_speed_m_s: f64,
+    pub turn_speed_rad_s: f64,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Primitive {
+    /// The named object this primitive is part of; `None` for furniture and clutter.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub object: Option<String>,
+    /// Which copy of `object` (two identical chairs are instances 0 and 1).
+    #[serde(default)]
+    pub instance: u32,
+    /// Primitives sharing a group are culled together (a table and its legs); named objects
+    /// are grouped by (object, instance) regardless.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub group: Option<String>,
+    pub shape: Shape,
+    pub material: Material,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum Shape {
+    /// A box rotated by `yaw_deg` about the vertical through its centre.
+    Box {
+        center_m: [f64; 3],
+        size_m: [f64; 3],
+        #[serde(default)]
+        yaw_deg: f64,
+    },
+    /// A vertical cylinder standing on `base_center_m`.
+    Cylinder {
+        base_center_m: [f64; 3],
+        radius_m: f64,
+        height_m: f64,
+    },
+    Sphere { center_m: [f64; 3], radius_m: f64 },
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Material {
+    /// Albedo as display RGB in [0, 1].
+    pub color: [f64; 3],
+    #[serde(default)]
+    pub texture: Texture,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum Texture {
+    #[default]
+    Flat,
+    /// Two-octave value noise with feature size `scale_m`; albedo varies by +-`amount`.
+    Noise { scale_m: f64, amount: f64 },
+    /// Bands of width period/2 along `axis` (0 = x, 1 = y, 2 = z), darkened by `amount`.
+    Stripes { period_m: f64, axis: u8, amount: f64 },
+    /// Rings around the primitive's local vertical axis, warped by noise.
+    Wood { ring_period_m: f64, amount: f64 },
+}
+
+/// Where the robot goes. Bearings are measured in odom from +x, counter-clockwise.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PathSpec {
+    /// The point the robot circles and faces, in odom (x, y).
+    pub target_m: [f64; 2],
+    /// Distance of the robot (base_link) from `target_m` on a tour.
+    pub tour_radius_m: f64,
+    /// Bearing of the first tour stop as seen from the target.
+    pub tour_start_deg: f64,
+    /// Train viewpoints: the robot stands at this bearing and distance, facing the target.
+    pub train_views: Vec<View>,
+    /// Background stops of train sessions (target object removed).
+    pub background_stops: Vec<StopPose>,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct View {
+    pub bearing_deg: f64,
+    pub distance_m: f64,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StopPose {
+    pub x_m: f64,
+    pub y_m: f64,
+    pub yaw_deg: f64,
+}
+
+impl Scene {
+    pub fn from_json(text: &str) -> Result<Self, String> {
+        let scene: Scene = serde_json::from_str(text).map_err(|e| e.to_string())?;
+        scene.validate()?;
+        Ok(scene)
+    }
+
+    /// Names of the objects in the scene, sorted, each once.
+    pub fn object_names(&self) -> Vec<String> {
+        let mut names: Vec<String> = self.primitives.iter().filter_map(|p| p.object.clone()).collect();
+        names.sort();
+        names.dedup();
+        names
+    }
+
+    /// Checks every number the renderer and planner rely on; the message names the field.
+    pub fn validate(&self) -> Result<(), String> {
+        let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());
+        let positive = |v: &[f64]| v.iter().all(|x| x.is_finite() && *x > 0.0);
+        if !positive(&self.room.size_m) {
+            return Err(format!("room.size_m {:?} must be positive", self.room.size_m));
+        }
+        let mats = [&self.room.floor, &self.room.ceiling]
+            .into_iter()
+            .chain(self.room.walls.iter())
+            .map(|m| ("room", m))
+            .chain(self.primitives.iter().map(|p| ("primitive", &p.material)));
+        for (what, m) in mats {
+            if !m.color.iter().all(|c| (0.0..=1.0).contains(c)) {
+                return Err(format!("{what} colour {:?} must lie in [0, 1]", m.color));
+            }
+            let ok = match m.texture {
+                Texture::Flat => true,
+                Texture::Noise { scale_m, amount } => positive(&[scale_m]) && finite(&[amount]),
+                Texture::Stripes { period_m, axis, amount } => {
+                    positive(&[period_m]) && axis < 3 && finite(&[amount])
+                }
+                Texture::Wood { ring_period_m, amount } => positive(&[ring_period_m]) && finite(&[amount]),
+            };
+            if !ok {
+                return Err(format!("{what} texture {:?} needs positive sizes and axis 0..2", m.texture));
+            }
+        }
+        let l = &self.light;
+        let dir_len = l.direction.iter().map(|x| x * x).sum::<f64>().sqrt();
+        if !finite(&l.direction) || dir_len < 1e-9 || !(l.intensity >= 0.0) || !(l.ambient >= 0.0) {
+            return Err(format!("light {l:?} needs a non-zero direction and non-negative radiance"));
+        }
+        let c = &self.camera;
+        if c.width == 0 || c.height == 0 || c.width > 4096 || c.height > 4096 {
+            return Err(format!("camera {} x {} must be 1 to 4096 pixels a side", c.width, c.height));
+        }
+        if !(c.hfov_deg > 1.0 && c.hfov_deg < 170.0) || !finite(&c.mount_m) || !c.pitch_down_deg.is_finite() {
+            return Err(format!("camera hfov_deg {} must be in (1, 170), mount and pitch finite", c.hfov_deg));
+        }
+        if !positive(&[self.robot.drive_speed_m_s, self.robot.turn_speed_rad_s]) {
+            return Err(format!("robot speeds {:?} must be positive", self.robot));
+        }
+        for (i, p) in self.primitives.iter().enumerate() {
+            let ok = match p.shape {
+                Shape::Box { center_m, size_m, yaw_deg } => {
+                    finite(&center_m) && positive(&size_m) && yaw_deg.is_finite()
+                }
+                Shape::Cylinder { base_center_m, radius_m, height_m } => {
+                    finite(&base_center_m) && positive(&[radius_m, height_m])
+                }
+                Shape::Sphere { center_m, radius_m } => finite(&center_m) && positive(&[radius_m]),
+            };
+            if !ok {
+                return Err(format!("primitive {i} has a non-finite or non-positive size: {:?}", p.shape));
+            }
+            if p.object.as_deref() == Some("") {
+                return Err(format!("primitive {i} has an empty object name"));
+            }
+        }
+        if !self.primitives.iter().any(|p| p.object.as_deref() == Some(self.target.as_str())) {
+            return Err(format!("target object {:?} has no primitive", self.target));
+        }
+        let path = &self.path;
+        if !finite(&path.target_m) || !positive(&[path.tour_radius_m]) || !path.tour_start_deg.is_finite() {
+            return Err("path target_m, tour_radius_m and tour_start_deg must be finite, radius positive".into());
+        }
+        if path.train_views.is_empty()
+            || !path.train_views.iter().all(|v| v.bearing_deg.is_finite() && positive(&[v.distance_m]))
+        {
+            return Err("path.train_views needs at least one view with a positive distance".into());
+        }
+        if !path.background_stops.iter().all(|s| finite(&[s.x_m, s.y_m, s.yaw_deg])) {
+            return Err("path.background_stops must be finite".into());
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn builtins_parse_and_name_their_target() {
+        for name in BUILTIN_SCENES {
+            let s = Scene::from_json(builtin_json(name).unwrap()).unwrap_or_else(|e| panic!("{name}: {e}"));
+            assert_eq!(s.name, name);
+            assert_eq!(s.camera.width, 256);
+            assert_eq!(s.camera.height, 240);
+        }
+        let two = Scene::from_json(builtin_json("two-chairs").unwrap()).unwrap();
+        assert_eq!(two.object_names(), vec!["chair".to_owned()]);
+        let instances: Vec<u32> = two.primitives.iter().filter(|p| p.object.is_some()).map(|p| p.instance).collect();
+        assert!(instances.contains(&0) && instances.contains(&1));
+    }
+
+    #[test]
+    fn validation_names_the_bad_field() {
+        let mut s = Scene::from_json(builtin_json("chair").unwrap()).unwrap();
+        s.target = "sofa".into();
+        assert_eq!(s.validate().unwrap_err(), "target object \"sofa\" has no primitive");
+        let bad = builtin_json("chair").unwrap().replacen("\"hfov_deg\"", "\"hfov\"", 1);
+        assert!(Scene::from_json(&bad).unwrap_err().contains("unknown field `hfov`"));
+    }
+}
