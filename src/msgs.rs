@@ -3,7 +3,8 @@
 //! Invariants: field order and types match the upstream ROS 2 definitions exactly (Humble and
 //! later), so payloads interoperate with rosbag2, Foxglove and Rerun; schema text is the main
 //! definition followed by every dependency once, each after a line of 80 `=` and
-//! `MSG: pkg/msg/Type`, as the MCAP ros2 profile specifies.
+//! `MSG: pkg/Type` (no `/msg/`: that is how rosbag2 writes it, and Rerun resolves field types
+//! such as `std_msgs/Header` only against names of that form).
 
 use std::collections::BTreeSet;
 
@@ -593,7 +594,7 @@ pub fn schema_text(full_type: &str) -> Option<String> {
     for dep in order {
         out.push_str(&"=".repeat(80));
         out.push('\n');
-        out.push_str(&format!("MSG: {dep}\n"));
+        out.push_str(&format!("MSG: {}\n", dep.replacen("/msg/", "/", 1)));
         out.push_str(definition(&dep)?);
     }
     Some(out)
@@ -607,15 +608,15 @@ mod tests {
     fn odometry_schema_lists_every_dependency_once() {
         let s = schema_text(Odometry::TYPE).unwrap();
         for dep in [
-            "std_msgs/msg/Header",
-            "builtin_interfaces/msg/Time",
-            "geometry_msgs/msg/PoseWithCovariance",
-            "geometry_msgs/msg/Pose",
-            "geometry_msgs/msg/Point",
-            "geometry_msgs/msg/Quaternion",
-            "geometry_msgs/msg/TwistWithCovariance",
-            "geometry_msgs/msg/Twist",
-            "geometry_msgs/msg/Vector3",
+            "std_msgs/Header",
+            "builtin_interfaces/Time",
+            "geometry_msgs/PoseWithCovariance",
+            "geometry_msgs/Pose",
+            "geometry_msgs/Point",
+            "geometry_msgs/Quaternion",
+            "geometry_msgs/TwistWithCovariance",
+            "geometry_msgs/Twist",
+            "geometry_msgs/Vector3",
         ] {
             assert_eq!(s.matches(&format!("MSG: {dep}\n")).count(), 1, "{dep} in\n{s}");
         }
