@@ -1,0 +1,91 @@
+//! Fuser benchmarks (`cargo bench --bench fuse`): one frame's update of a 100^3 grid, one
+//! motion blur of each kind, and how both scale with the grid; each as the median of repeated
+//! runs, with the same operations timed in NumPy (scripts/numpy_peer.py, when the venv at
+//! target/pyenv exists) as the peer for a ratio. `OBJLOC_BENCH_SCALING=1` adds grids up to
+//! 400^3.
+
+use std::hint::black_box;
+use std::time::Instant;
+
+use objloc::geometry::{Camera, camera_mount, iso_from_xy_yaw};
+use objloc::grid::{Grid, GridSpec, TileEvidence};
+use objloc::motion::{BlurMode, Blurrer};
+
+fn median_ms(reps: usize, mut f: impl FnMut()) -> f64 {
+    let mut t: Vec<f64> = (0..reps)
+        .map(|_| {
+            let s = Instant::now();
+            f();
+            s.elapsed().as_secs_f64() * 1e3
+        })
+        .collect();
+    t.sort_by(f64::total_cmp);
+    t[t.len() / 2]
+}
+
+/// A grid of n^3 cells of 4 cm centred on the origin, a camera 2 m away looking at it.
+fn setup(n: usize) -> (Grid, objloc::geometry::Iso3, Camera, TileEvidence) {
+    let half = n as f64 * 0.04 / 2.0;
+    let spec = GridSpec::from_bounds([-half, -half, 0.0], [half, half, 2.0 * half], 0.04).unwrap();
+    let grid = Grid::new(spec, 0.005).unwrap();
+    let odom_from_camera = iso_from_xy_yaw(-half - 0.5, 0.1, 0.05) * camera_mount([0.0, 0.0, 1.2], 0.25);
+    let cam = Camera::with_hfov(256, 240, 1.05);
+    let p: Vec<f32> = (0..30 * 32).map(|i| 0.001 + 0.9 * ((i * 7919) % 997) as f32 / 997.0).collect();
+    let ev = TileEvidence::from_probabilities(30, 32, 8, &p, 0.005);
+    (grid, odom_from_camera.inverse(), cam, ev)
+}
+
+fn main() {
+    let threads = rayon::current_num_threads();
+    println!("fuser benchmarks, {threads} rayon threads, medians");
+    let mut sizes = vec![50usize, 100, 200];
+    if std::env::var_os("OBJLOC_BENCH_SCALING").is_some() {
+        sizes.push(300);
+        sizes.push(400);
+    }
+    println!("{:>6} {:>12} {:>14} {:>14} {:>14} {:>14}", "grid", "cells", "update ms", "translate ms", "rotate ms", "prob-blur ms");
+    let mut at100 = (0.0, 0.0);
+    for &n in &sizes {
+        let (mut g, cam_from_odom, cam, ev) = setup(n);
+        let reps = if n <= 100 { 21 } else { 5 };
+        let update = median_ms(reps, || {
+            black_box(g.integrate(&cam_from_odom, &cam, &ev));
+        });
+        let mut b = Blurrer::default();
+        // A 0.5 m drive at sigma_v 0.01 m/s x 1.7 s and a 90 degree turn at 0.01 rad/s x 3 s.
+        let translate = median_ms(reps.min(9), || b.translate(&mut g, [0.8, 0.6], 0.017, BlurMode::LogOdds));
+        let rotate = median_ms(reps.min(9), || b.rotate(&mut g, [0.0, -1.5], 0.03, BlurMode::LogOdds));
+        let prob = median_ms(reps.min(9), || b.translate(&mut g, [0.8, 0.6], 0.017, BlurMode::Probability));
+        if n == 100 {
+            at100 = (update, translate.max(rotate));
+        }
+        println!("{:>5}^3 {:>12} {:>14.2} {:>14.2} {:>14.2} {:>14.2}", n, n * n * n, update, translate, rotate, prob);
+    }
+    let py = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("target/pyenv/bin/python");
+    let script = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/numpy_peer.py");
+    if py.exists() {
+        match std::process::Command::new(&py).arg(&script).output() {
+            Ok(out) if out.status.success() => {
+                let text = String::from_utf8_lossy(&out.stdout);
+                print!("numpy peer (same operations, 100^3): {text}");
+                let get = |key: &str| {
+                    text.split_whitespace()
+                        .skip_while(|w| *w != key)
+                        .nth(1)
+                        .and_then(|v| v.parse::<f64>().ok())
+                };
+                if let (Some(u), Some(bl)) = (get("update_ms"), get("blur_ms")) {
+                    println!(
+                        "ratio numpy/objloc at 100^3: update {:.1}x, blur {:.1}x",
+                        u / at100.0,
+                        bl / at100.1
+                    );
+                }
+            }
+            Ok(out) => eprintln!("numpy peer failed: {}", String::from_utf8_lossy(&out.stderr)),
+            Err(e) => eprintln!("numpy peer not run: {e}"),
+        }
+    } else {
+        println!("(no target/pyenv: numpy peer skipped; `cargo test --release --test interop` creates it)");
+    }
+}
