@@ -183,7 +183,8 @@ pub fn base_from_optical(scene: &Scene) -> Iso3 {
     camera_mount(scene.camera.mount_m, scene.camera.pitch_down_deg.to_radians())
 }
 
-fn iso_of(p: &Pose2) -> Iso3 {
+/// The base_link pose of a planar pose.
+pub fn iso_from_pose2(p: &Pose2) -> Iso3 {
     iso_from_xy_yaw(p.x_m, p.y_m, p.yaw_rad)
 }
 
@@ -313,7 +314,7 @@ fn frame_jitter(rng: &mut Rng) -> FrameJitter {
 }
 
 fn pose3(p: &Pose2) -> Pose {
-    pose_from_iso(&iso_of(p))
+    pose_from_iso(&iso_from_pose2(p))
 }
 
 /// Records a simulated session to `out` (via `out.partial`). `progress(done, total)` is
@@ -415,7 +416,7 @@ pub fn record(
                 messages += write_poses(&mut writer, &topics, stamp_ns, nominal, truth, 0.0, 0.0)?;
                 let jitter = frame_jitter(&mut camera_rng);
                 let renderer = if *is_background { &background } else { &full };
-                let odom_from_optical = iso_of(truth) * mount;
+                let odom_from_optical = iso_from_pose2(truth) * mount;
                 let rendered = renderer.render(&odom_from_optical, &jitter);
                 let png = encode_png(rendered.width, rendered.height, &rendered.rgb).map_err(|what| SimError::Encode {
                     index: *index,
