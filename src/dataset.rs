@@ -1,1 +1,391 @@
-//! dataset: placeholder.
+//! Labelled examples from sessions, as the paper builds them: each frame with a label on
+//! /labels (same header stamp) is cut into tiles; a tile is positive when it lies fully
+//! inside a labelled rectangle, negative otherwise (an empty label = a background frame, all
+//! negative). Frames without a label are not used.
+//!
+//! Invariants: the tiles of the grid aligned at (0, 0) - the only grid prediction uses - are
+//! divided into equal training, test and pruning thirds by a seeded, stratified shuffle
+//! (positives and negatives dealt round-robin, so each third gets a third of the rare
+//! positives and the thirds differ in size by at most one); tiles of grids shifted by
+//! multiples of `train_stride_px` are added to the training third only, so test and pruning
+//! measure exactly what prediction sees. Frames are taken in session order, sessions in the
+//! order given; the result depends on nothing else.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use rayon::prelude::*;
+use thiserror::Error;
+
+use crate::features::{FeatureKind, TileFeature, tile_histograms};
+use crate::msgs::RegionOfInterest;
+use crate::session::{At, Frame, Rgb8, SessionError, SessionMsg, SessionReader, Topics};
+use crate::tree::{Examples, Third};
+
+/// Allowed tile sides: a tile must hold at least 4 pixels, and counts fit u16 up to 255.
+pub const TILE_PX_RANGE: std::ops::RangeInclusive<u32> = 2..=128;
+
+#[derive(Debug, Error)]
+pub enum DatasetError {
+    #[error(transparent)]
+    Session(#[from] SessionError),
+    #[error("{at}: frame does not decode: {what}")]
+    Frame { at: At, what: String },
+    #[error("{}: no frame has a label on {topic}{}", path.display(), object.as_ref().map(|o| format!(" for object {o:?}")).unwrap_or_default())]
+    NoLabelledFrames {
+        path: PathBuf,
+        topic: String,
+        object: Option<String>,
+    },
+    #[error("tile size {tile_px} px is outside {}..={} px", TILE_PX_RANGE.start(), TILE_PX_RANGE.end())]
+    TileSize { tile_px: u32 },
+    #[error("train stride {stride_px} px must be 1 to the tile size {tile_px} px")]
+    Stride { stride_px: u32, tile_px: u32 },
+}
+
+/// One frame of a session, decoded, with its label rectangles if it has a label.
+#[derive(Debug, Clone)]
+pub struct SessionFrame {
+    pub stamp_ns: i64,
+    pub log_time_ns: u64,
+    pub image: Rgb8,
+    /// None = no label for this frame; Some(empty) = a background frame.
+    pub regions: Option<Vec<RegionOfInterest>>,
+}
+
+/// A session read for training or prediction.
+#[derive(Debug, Clone)]
+pub struct LoadedSession {
+    pub path: PathBuf,
+    /// Hex SHA-256 of the file's bytes.
+    pub sha256: String,
+    pub frames: Vec<SessionFrame>,
+}
+
+pub fn sha256_hex(bytes: &[u8]) -> String {
+    use sha2::{Digest, Sha256};
+    let digest = Sha256::digest(bytes);
+    digest.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// Reads a session's frames and labels. `object`: use only labels naming it (None: all).
+/// `labelled_only`: skip decoding frames without a label (training needs only those).
+pub fn load_session(
+    path: &Path,
+    topics: Topics,
+    object: Option<&str>,
+    labelled_only: bool,
+) -> Result<LoadedSession, DatasetError> {
+    let bytes = std::fs::read(path).map_err(|source| SessionError::Io {
+        path: path.to_owned(),
+        source,
+    })?;
+    let sha256 = sha256_hex(&bytes);
+    let reader = SessionReader::from_bytes(path, &bytes, topics)?;
+    drop(bytes);
+    reader.require_frames()?;
+    let mut frames: Vec<(u64, String, Frame)> = Vec::new();
+    let mut labels: BTreeMap<i64, Vec<RegionOfInterest>> = BTreeMap::new();
+    for m in reader.messages() {
+        let m = m?;
+        match m.msg {
+            SessionMsg::Frame(f) => frames.push((m.log_time_ns, m.topic, f)),
+            SessionMsg::Label(l) => {
+                if object.is_none_or(|o| o == l.object) || l.regions.is_empty() {
+                    // Several labels for one frame (several objects, or a background label
+                    // next to an object label) add up their rectangles.
+                    labels
+                        .entry(l.header.stamp_ns)
+                        .or_default()
+                        .extend(l.regions);
+                }
+            }
+            _ => {}
+        }
+    }
+    let selected: Vec<_> = frames
+        .into_iter()
+        .filter_map(|(t, topic, f)| {
+            let regions = labels.get(&f.stamp_ns).cloned();
+            (!labelled_only || regions.is_some()).then_some((t, topic, f, regions))
+        })
+        .collect();
+    // Decoding dominates loading; rayon's collect keeps session order.
+    let frames = selected
+        .into_par_iter()
+        .map(|(log_time_ns, topic, f, regions)| {
+            let image = f.decode_rgb8().map_err(|what| DatasetError::Frame {
+                at: reader.at(Some(&topic), log_time_ns),
+                what,
+            })?;
+            Ok(SessionFrame {
+                stamp_ns: f.stamp_ns,
+                log_time_ns,
+                image,
+                regions,
+            })
+        })
+        .collect::<Result<Vec<_>, DatasetError>>()?;
+    Ok(LoadedSession {
+        path: path.to_owned(),
+        sha256,
+        frames,
+    })
+}
+
+/// Whether the tile at pixel (x, y) with side `tile_px` lies fully inside one rectangle.
+pub fn tile_inside(regions: &[RegionOfInterest], x: u32, y: u32, tile_px: u32) -> bool {
+    regions.iter().any(|r| {
+        x >= r.x_offset
+            && y >= r.y_offset
+            && x as u64 + tile_px as u64 <= r.x_offset as u64 + r.width as u64
+            && y as u64 + tile_px as u64 <= r.y_offset as u64 + r.height as u64
+    })
+}
+
+/// Tile labels of the aligned grid of a `rows` x `cols` probability map, row-major.
+pub fn tile_labels(
+    regions: &[RegionOfInterest],
+    rows: usize,
+    cols: usize,
+    tile_px: u32,
+) -> Vec<bool> {
+    let mut out = Vec::with_capacity(rows * cols);
+    for r in 0..rows {
+        for c in 0..cols {
+            out.push(tile_inside(
+                regions,
+                c as u32 * tile_px,
+                r as u32 * tile_px,
+                tile_px,
+            ));
+        }
+    }
+    out
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ExampleParams {
+    pub features: FeatureKind,
+    pub tile_px: u32,
+    /// Shift between the extra training grids; = tile_px for the aligned grid only.
+    pub train_stride_px: u32,
+    pub seed: u64,
+}
+
+impl ExampleParams {
+    pub fn validate(&self) -> Result<(), DatasetError> {
+        if !TILE_PX_RANGE.contains(&self.tile_px) {
+            return Err(DatasetError::TileSize {
+                tile_px: self.tile_px,
+            });
+        }
+        if self.train_stride_px == 0 || self.train_stride_px > self.tile_px {
+            return Err(DatasetError::Stride {
+                stride_px: self.train_stride_px,
+                tile_px: self.tile_px,
+            });
+        }
+        Ok(())
+    }
+}
+
+/// SplitMix64: a tiny, fully specified generator, so a seed means the same split everywhere.
+#[derive(Debug, Clone)]
+pub struct SplitMix64(pub u64);
+
+impl SplitMix64 {
+    pub fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+
+    /// Uniform in 0..n (n > 0), by rejection so no value is favoured.
+    pub fn below(&mut self, n: u64) -> u64 {
+        let zone = u64::MAX - u64::MAX % n;
+        loop {
+            let v = self.next_u64();
+            if v < zone {
+                return v % n;
+            }
+        }
+    }
+
+    pub fn shuffle<T>(&mut self, v: &mut [T]) {
+        for i in (1..v.len()).rev() {
+            let j = self.below(i as u64 + 1) as usize;
+            v.swap(i, j);
+        }
+    }
+}
+
+/// Thirds for `labels`: stratified, seeded; sizes differ by at most one.
+pub fn assign_thirds(labels: &[bool], seed: u64) -> Vec<Third> {
+    let mut rng = SplitMix64(seed);
+    let mut pos: Vec<usize> = (0..labels.len()).filter(|&i| labels[i]).collect();
+    let mut neg: Vec<usize> = (0..labels.len()).filter(|&i| !labels[i]).collect();
+    rng.shuffle(&mut pos);
+    rng.shuffle(&mut neg);
+    let mut out = vec![Third::Train; labels.len()];
+    const ORDER: [Third; 3] = [Third::Train, Third::Test, Third::Prune];
+    for (k, &i) in pos.iter().chain(&neg).enumerate() {
+        out[i] = ORDER[k % 3];
+    }
+    out
+}
+
+/// Examples with where they came from.
+#[derive(Debug, Clone)]
+pub struct ExampleSet {
+    /// The aligned-grid tiles (indices `0..aligned`) then the shifted-grid tiles.
+    pub examples: Examples,
+    pub aligned: usize,
+    pub labelled_frames: usize,
+}
+
+/// The examples of all labelled frames of `sessions`.
+pub fn build_examples(
+    sessions: &[LoadedSession],
+    params: &ExampleParams,
+) -> Result<ExampleSet, DatasetError> {
+    params.validate()?;
+    let feature = params.features;
+    let t = params.tile_px;
+    let frames: Vec<(&Rgb8, &[RegionOfInterest])> = sessions
+        .iter()
+        .flat_map(|s| &s.frames)
+        .filter_map(|f| f.regions.as_deref().map(|r| (&f.image, r)))
+        .collect();
+    let offsets: Vec<(u32, u32)> = {
+        let steps: Vec<u32> = (0..t).step_by(params.train_stride_px as usize).collect();
+        steps
+            .iter()
+            .flat_map(|&dy| steps.iter().map(move |&dx| (dx, dy)))
+            .collect()
+    };
+    // Per frame, per grid offset: (histograms, labels). Parallel over frames, ordered collect.
+    let per_frame: Vec<Vec<(Vec<u16>, Vec<bool>)>> = frames
+        .par_iter()
+        .map(|(img, regions)| {
+            offsets
+                .iter()
+                .map(|&(dx, dy)| {
+                    let h = tile_histograms(img, &feature, t, dx, dy);
+                    let mut labels = Vec::with_capacity(h.rows * h.cols);
+                    for r in 0..h.rows {
+                        for c in 0..h.cols {
+                            let x = dx + c as u32 * t;
+                            let y = dy + r as u32 * t;
+                            labels.push(tile_inside(regions, x, y, t));
+                        }
+                    }
+                    (h.counts, labels)
+                })
+                .collect()
+        })
+        .collect();
+    let bins = feature.bins();
+    let denom = (t * t) as u16;
+    let mut ex = Examples::new(bins, denom);
+    // Aligned grid first (offset index 0 is (0, 0)); its thirds are assigned together.
+    let aligned_labels: Vec<bool> = per_frame
+        .iter()
+        .flat_map(|grids| grids[0].1.iter().copied())
+        .collect();
+    let thirds = assign_thirds(&aligned_labels, params.seed);
+    let mut k = 0;
+    for grids in &per_frame {
+        let (counts, labels) = &grids[0];
+        for (i, &y) in labels.iter().enumerate() {
+            ex.push_dense(&counts[i * bins..(i + 1) * bins], y, thirds[k]);
+            k += 1;
+        }
+    }
+    let aligned = ex.len();
+    for grids in &per_frame {
+        for (counts, labels) in &grids[1..] {
+            for (i, &y) in labels.iter().enumerate() {
+                ex.push_dense(&counts[i * bins..(i + 1) * bins], y, Third::Train);
+            }
+        }
+    }
+    Ok(ExampleSet {
+        examples: ex,
+        aligned,
+        labelled_frames: frames.len(),
+    })
+}
+
+/// Writes `X.npy` (float32, n x bins, pixel fractions), `y.npy` (uint8 0/1) and `split.npy`
+/// (uint8: 0 train, 1 test, 2 prune) into `dir` (created if missing).
+pub fn export_features(set: &ExampleSet, dir: &Path) -> Result<(), crate::npy::NpyError> {
+    let ex = &set.examples;
+    std::fs::create_dir_all(dir).map_err(|source| crate::npy::NpyError::Io {
+        path: dir.display().to_string(),
+        source,
+    })?;
+    let mut x = Vec::with_capacity(ex.len() * ex.n_features);
+    for i in 0..ex.len() {
+        x.extend(ex.dense_values(i));
+    }
+    crate::npy::write(&dir.join("X.npy"), &[ex.len(), ex.n_features], &x)?;
+    let y: Vec<u8> = ex.labels.iter().map(|&l| l as u8).collect();
+    crate::npy::write(&dir.join("y.npy"), &[ex.len()], &y)?;
+    let split: Vec<u8> = ex.thirds.iter().map(|&t| t as u8).collect();
+    crate::npy::write(&dir.join("split.npy"), &[ex.len()], &split)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn roi(x: u32, y: u32, w: u32, h: u32) -> RegionOfInterest {
+        RegionOfInterest {
+            x_offset: x,
+            y_offset: y,
+            height: h,
+            width: w,
+            do_rectify: false,
+        }
+    }
+
+    #[test]
+    fn tile_must_be_fully_inside() {
+        let r = [roi(4, 4, 12, 8)];
+        assert!(tile_inside(&r, 4, 4, 8));
+        assert!(tile_inside(&r, 8, 4, 8)); // ends at x 16 = 4 + 12
+        assert!(!tile_inside(&r, 9, 4, 8));
+        assert!(!tile_inside(&r, 0, 0, 8));
+        assert!(!tile_inside(&[], 4, 4, 8));
+        // 8 px tiles of a 24 x 16 map start at multiples of 8: none fits in y 4..12.
+        assert_eq!(tile_labels(&r, 2, 3, 8), vec![false; 6]);
+        assert_eq!(
+            tile_labels(&[roi(8, 0, 16, 8)], 2, 3, 8),
+            vec![false, true, true, false, false, false]
+        );
+    }
+
+    #[test]
+    fn splitmix_reference_values() {
+        // Reference outputs of SplitMix64 seeded with 0 (Vigna's splitmix64.c).
+        let mut r = SplitMix64(0);
+        assert_eq!(r.next_u64(), 0xE220_A839_7B1D_CDAF);
+        assert_eq!(r.next_u64(), 0x6E78_9E6A_A1B9_65F4);
+    }
+
+    #[test]
+    fn thirds_are_equal_and_stratified() {
+        let labels: Vec<bool> = (0..30).map(|i| i % 10 == 0).collect();
+        let th = assign_thirds(&labels, 7);
+        for third in [Third::Train, Third::Test, Third::Prune] {
+            let n = th.iter().filter(|&&t| t == third).count();
+            let pos = (0..30).filter(|&i| th[i] == third && labels[i]).count();
+            assert_eq!((n, pos), (10, 1));
+        }
+        assert_eq!(th, assign_thirds(&labels, 7));
+        assert_ne!(th, assign_thirds(&labels, 8));
+    }
+}

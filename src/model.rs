@@ -1,1 +1,575 @@
-//! model: placeholder.
+//! The trained tile classifier as a file: versioned JSON with the feature spec, tile size,
+//! tree, the fuser's prior (`base_rate`) and how it was trained; plus per-frame prediction.
+//!
+//! Invariants: a model that loads has version [`MODEL_VERSION`], a feature kind whose bin
+//! count equals the tree's feature count, a tile size in [`TILE_PX_RANGE`], a base rate
+//! strictly inside (0, 1) and a tree that passes [`Tree::validate`], so `predict` cannot
+//! panic on it. Saving goes through `write_atomic`; the JSON holds no clock value, so the
+//! same training inputs give the same bytes.
+
+use std::path::{Path, PathBuf};
+
+use image::ImageEncoder;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use thiserror::Error;
+
+use crate::dataset::{ExampleParams, ExampleSet, LoadedSession, TILE_PX_RANGE, build_examples};
+use crate::features::{FeatureKind, TileFeature, tile_histograms};
+use crate::session::Rgb8;
+use crate::tree::{Examples, FitReport, Metrics, Third, Tree, TreeError, TreeParams, fit, metrics};
+
+pub const MODEL_VERSION: u32 = 1;
+
+#[derive(Debug, Error)]
+pub enum ModelError {
+    #[error("{}: {source}", path.display())]
+    Io {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("{}: not a model file: {source}", path.display())]
+    Json {
+        path: PathBuf,
+        #[source]
+        source: serde_json::Error,
+    },
+    #[error("{}: model version {found} is not supported (this objloc reads version {MODEL_VERSION}); retrain with `objloc train`", path.display())]
+    Version { path: PathBuf, found: String },
+    #[error("{}: {what}", path.display())]
+    Spec { path: PathBuf, what: String },
+    #[error("{}: invalid tree: {source}", path.display())]
+    Tree {
+        path: PathBuf,
+        #[source]
+        source: TreeError,
+    },
+    #[error(transparent)]
+    Dataset(#[from] crate::dataset::DatasetError),
+    #[error("training failed: {0}")]
+    Fit(TreeError),
+    #[error("no labelled frames in {sessions} session(s): nothing to train on")]
+    NoExamples { sessions: usize },
+    #[error(
+        "none of the {examples} training tiles is positive (fully inside a label rectangle): nothing to learn; labelled rectangles must be at least one tile ({tile_px} px) wide and high"
+    )]
+    NoPositives { examples: usize, tile_px: u32 },
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SessionHash {
+    pub path: String,
+    pub sha256: String,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ThirdCount {
+    pub examples: usize,
+    pub positives: usize,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ExampleCounts {
+    /// Training third of the aligned grid plus the shifted-grid tiles.
+    pub train: ThirdCount,
+    /// Of `train`, the tiles from shifted grids.
+    pub train_shifted: ThirdCount,
+    pub test: ThirdCount,
+    pub prune: ThirdCount,
+    pub labelled_frames: usize,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TrainingMetadata {
+    pub seed: u64,
+    pub sessions: Vec<SessionHash>,
+    /// Labels of this object only (None: every label).
+    pub object: Option<String>,
+    pub train_stride_px: u32,
+    pub tree_params: TreeParams,
+    pub examples: ExampleCounts,
+    pub fit: FitReport,
+    /// The final tree on the test third.
+    pub test_metrics: Metrics,
+    /// The final tree on the pruning third.
+    pub prune_metrics: Metrics,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Model {
+    pub version: u32,
+    pub features: FeatureKind,
+    pub tile_px: u32,
+    pub tree: Tree,
+    /// Fraction of positive training examples: the fuser's prior.
+    pub base_rate: f64,
+    pub metadata: TrainingMetadata,
+}
+
+/// Per-tile probabilities of one frame, row-major: `p[r * cols + c]`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ProbMap {
+    pub rows: usize,
+    pub cols: usize,
+    pub tile_px: u32,
+    pub p: Vec<f32>,
+}
+
+impl ProbMap {
+    /// The frame in grey with each tile tinted red by its probability (edge pixels outside
+    /// whole tiles stay grey).
+    pub fn heatmap(&self, img: &Rgb8) -> Rgb8 {
+        let mut data = Vec::with_capacity(img.data.len());
+        let t = self.tile_px as usize;
+        for y in 0..img.height as usize {
+            for x in 0..img.width as usize {
+                let i = (y * img.width as usize + x) * 3;
+                let [r, g, b] = [img.data[i], img.data[i + 1], img.data[i + 2]];
+                // Rec. 601 luma, halved so the red tint stands out.
+                let grey = (299 * r as u32 + 587 * g as u32 + 114 * b as u32) / 2000;
+                let (tr, tc) = (y / t.max(1), x / t.max(1));
+                let p = if tr < self.rows && tc < self.cols {
+                    self.p[tr * self.cols + tc].clamp(0.0, 1.0)
+                } else {
+                    0.0
+                };
+                let g = grey as f32;
+                data.push((g + p * (255.0 - g)).round() as u8);
+                data.push((g * (1.0 - p)).round() as u8);
+                data.push((g * (1.0 - p)).round() as u8);
+            }
+        }
+        Rgb8 {
+            width: img.width,
+            height: img.height,
+            data,
+        }
+    }
+}
+
+impl Model {
+    pub fn load(path: &Path) -> Result<Model, ModelError> {
+        let bytes = std::fs::read(path).map_err(|source| ModelError::Io {
+            path: path.to_owned(),
+            source,
+        })?;
+        let json = |source| ModelError::Json {
+            path: path.to_owned(),
+            source,
+        };
+        // The version is checked before the layout, so an old or future file says so instead
+        // of naming a missing field.
+        let value: serde_json::Value = serde_json::from_slice(&bytes).map_err(json)?;
+        match value.get("version").and_then(|v| v.as_u64()) {
+            Some(v) if v == MODEL_VERSION as u64 => {}
+            other => {
+                return Err(ModelError::Version {
+                    path: path.to_owned(),
+                    found: other.map_or_else(|| "(none)".to_owned(), |v| v.to_string()),
+                });
+            }
+        }
+        if let Some(f) = value.get("features")
+            && serde_json::from_value::<FeatureKind>(f.clone()).is_err()
+        {
+            return Err(ModelError::Spec {
+                path: path.to_owned(),
+                what: format!("feature spec {f} is not known (known: \"rgb332\", \"hsv\")"),
+            });
+        }
+        let model: Model = serde_json::from_value(value).map_err(json)?;
+        model.check().map_err(|e| match e {
+            Ok(what) => ModelError::Spec {
+                path: path.to_owned(),
+                what,
+            },
+            Err(source) => ModelError::Tree {
+                path: path.to_owned(),
+                source,
+            },
+        })?;
+        Ok(model)
+    }
+
+    /// Err(Ok(what)) for a spec mismatch, Err(Err(_)) for a broken tree.
+    fn check(&self) -> Result<(), Result<String, TreeError>> {
+        if !TILE_PX_RANGE.contains(&self.tile_px) {
+            return Err(Ok(format!(
+                "tile size {} px is outside {}..={} px",
+                self.tile_px,
+                TILE_PX_RANGE.start(),
+                TILE_PX_RANGE.end()
+            )));
+        }
+        if self.tree.n_features != self.features.bins() {
+            return Err(Ok(format!(
+                "tree has {} features but feature spec {:?} has {} bins",
+                self.tree.n_features,
+                self.features.name(),
+                self.features.bins()
+            )));
+        }
+        if !(self.base_rate > 0.0 && self.base_rate < 1.0) {
+            return Err(Ok(format!(
+                "base rate {} is not strictly between 0 and 1",
+                self.base_rate
+            )));
+        }
+        self.tree.validate().map_err(Err)
+    }
+
+    pub fn save(&self, path: &Path) -> Result<(), ModelError> {
+        let mut text = serde_json::to_string_pretty(self).map_err(|source| ModelError::Json {
+            path: path.to_owned(),
+            source,
+        })?;
+        text.push('\n');
+        crate::output::write_atomic(path, text.as_bytes()).map_err(|source| ModelError::Io {
+            path: path.to_owned(),
+            source,
+        })
+    }
+
+    /// Probability per tile of a frame, row-major, tiles aligned at pixel (0,0), partial edge
+    /// tiles dropped.
+    pub fn predict(&self, img: &Rgb8) -> ProbMap {
+        let h = tile_histograms(img, &self.features, self.tile_px, 0, 0);
+        let denom = (self.tile_px * self.tile_px) as f64;
+        let p = (0..h.rows * h.cols)
+            .map(|t| self.tree.predict_counts(h.tile(t), denom) as f32)
+            .collect();
+        ProbMap {
+            rows: h.rows,
+            cols: h.cols,
+            tile_px: self.tile_px,
+            p,
+        }
+    }
+
+    /// The training table: examples per third, tree size before and after pruning, test
+    /// metrics and the top splits in words.
+    pub fn summary_table(&self) -> String {
+        use std::fmt::Write;
+        let m = &self.metadata;
+        let e = &m.examples;
+        let mut s = String::new();
+        let _ = writeln!(
+            s,
+            "features {} | tile {} px | train stride {} px | seed {} | {} labelled frames",
+            self.features.name(),
+            self.tile_px,
+            m.train_stride_px,
+            m.seed,
+            e.labelled_frames
+        );
+        let _ = writeln!(
+            s,
+            "{:<26} {:>9} {:>9} {:>10}",
+            "examples", "tiles", "positive", "rate"
+        );
+        let rows = [
+            ("train (aligned + shifted)", e.train),
+            ("  of which shifted grids", e.train_shifted),
+            ("test", e.test),
+            ("prune", e.prune),
+        ];
+        for (name, c) in rows {
+            let rate = c.positives as f64 / c.examples.max(1) as f64;
+            let _ = writeln!(
+                s,
+                "{name:<26} {:>9} {:>9} {rate:>10.6}",
+                c.examples, c.positives
+            );
+        }
+        let f = &m.fit;
+        let _ = writeln!(
+            s,
+            "growth: {} best-first expansions tried, {} kept (best test log-loss); m-estimate m = {}",
+            f.expansions_tried, f.expansions_kept, m.tree_params.m_estimate
+        );
+        let _ = writeln!(s, "{:<26} {:>9} {:>9}", "tree", "nodes", "depth");
+        let _ = writeln!(
+            s,
+            "{:<26} {:>9} {:>9}",
+            "before pruning", f.nodes_grown, f.depth_grown
+        );
+        let _ = writeln!(
+            s,
+            "{:<26} {:>9} {:>9}",
+            "after pruning", f.nodes_pruned, f.depth_pruned
+        );
+        let _ = writeln!(
+            s,
+            "{:<26} {:>9} {:>9} {:>9}",
+            "final tree on", "accuracy", "log-loss", "ROC AUC"
+        );
+        for (name, t) in [
+            ("test third", &m.test_metrics),
+            ("pruning third", &m.prune_metrics),
+        ] {
+            let auc = t
+                .roc_auc
+                .map_or_else(|| "n/a".to_owned(), |a| format!("{a:.4}"));
+            let _ = writeln!(
+                s,
+                "{name:<26} {:>9.5} {:>9.5} {auc:>9}",
+                t.accuracy, t.log_loss
+            );
+        }
+        let _ = writeln!(s, "base rate (fuser prior) {:.6}", self.base_rate);
+        let _ = writeln!(s, "top splits:");
+        for line in self.top_splits(5) {
+            let _ = writeln!(s, "  {line}");
+        }
+        s
+    }
+
+    /// The first `k` splits from the root in words, breadth-first.
+    pub fn top_splits(&self, k: usize) -> Vec<String> {
+        self.tree
+            .splits_breadth_first()
+            .into_iter()
+            .take(k)
+            .filter_map(|i| {
+                let node = &self.tree.nodes[i];
+                let s = node.split.as_ref()?;
+                let right = &self.tree.nodes[s.right as usize];
+                let left = &self.tree.nodes[s.left as usize];
+                Some(format!(
+                    "node {i} (n={}): fraction of pixels in bin {}: {} > {:.4} -> {} (p={:.4}) else {} (p={:.4})",
+                    node.n_train,
+                    s.feature,
+                    self.features.describe_bin(s.feature as usize),
+                    s.threshold,
+                    s.right,
+                    right.p,
+                    s.left,
+                    left.p
+                ))
+            })
+            .collect()
+    }
+}
+
+/// Probability maps of every frame of a session, in session order.
+#[derive(Debug, Clone)]
+pub struct SessionPrediction {
+    pub stamps_ns: Vec<i64>,
+    pub maps: Vec<ProbMap>,
+    /// Tile metrics over the frames that have a label (None: no labelled frame).
+    pub labelled: Option<Metrics>,
+    pub labelled_frames: usize,
+}
+
+impl Model {
+    /// Predicts every frame; all frames must share one size (the maps form one array).
+    pub fn predict_session(
+        &self,
+        session: &LoadedSession,
+    ) -> Result<SessionPrediction, ModelError> {
+        if let Some(first) = session.frames.first() {
+            let size = |f: &crate::dataset::SessionFrame| (f.image.width, f.image.height);
+            if let Some(f) = session.frames.iter().find(|f| size(f) != size(first)) {
+                return Err(ModelError::Spec {
+                    path: session.path.clone(),
+                    what: format!(
+                        "frame at log time {} is {} x {} px but the first frame is {} x {} px; one probability array needs one frame size",
+                        crate::session::fmt_ns(f.log_time_ns),
+                        f.image.width,
+                        f.image.height,
+                        first.image.width,
+                        first.image.height
+                    ),
+                });
+            }
+        }
+        let maps: Vec<ProbMap> = session
+            .frames
+            .par_iter()
+            .map(|f| self.predict(&f.image))
+            .collect();
+        let mut p = Vec::new();
+        let mut y = Vec::new();
+        let mut labelled_frames = 0;
+        for (f, m) in session.frames.iter().zip(&maps) {
+            if let Some(regions) = &f.regions {
+                labelled_frames += 1;
+                p.extend(m.p.iter().map(|&v| v as f64));
+                y.extend(crate::dataset::tile_labels(
+                    regions, m.rows, m.cols, m.tile_px,
+                ));
+            }
+        }
+        Ok(SessionPrediction {
+            stamps_ns: session.frames.iter().map(|f| f.stamp_ns).collect(),
+            maps,
+            labelled: (labelled_frames > 0).then(|| metrics(&p, &y)),
+            labelled_frames,
+        })
+    }
+}
+
+impl SessionPrediction {
+    /// Writes `probs.npy` (float32 frames x rows x cols) and `stamps.npy` (int64 ns) into
+    /// `dir`, and with `heatmaps` a `heatmap_NNNNN.png` per frame.
+    pub fn write(
+        &self,
+        dir: &Path,
+        session: &LoadedSession,
+        heatmaps: bool,
+    ) -> Result<(), ModelError> {
+        let io = |path: &Path| {
+            let path = path.to_owned();
+            move |source| ModelError::Io { path, source }
+        };
+        std::fs::create_dir_all(dir).map_err(io(dir))?;
+        let (rows, cols) = self.maps.first().map_or((0, 0), |m| (m.rows, m.cols));
+        let probs: Vec<f32> = self.maps.iter().flat_map(|m| m.p.iter().copied()).collect();
+        let npy = |e: crate::npy::NpyError| match e {
+            crate::npy::NpyError::Io { path, source } => ModelError::Io {
+                path: path.into(),
+                source,
+            },
+            other => ModelError::Io {
+                path: dir.to_owned(),
+                source: std::io::Error::other(other.to_string()),
+            },
+        };
+        crate::npy::write(
+            &dir.join("probs.npy"),
+            &[self.maps.len(), rows, cols],
+            &probs,
+        )
+        .map_err(npy)?;
+        crate::npy::write(
+            &dir.join("stamps.npy"),
+            &[self.stamps_ns.len()],
+            &self.stamps_ns,
+        )
+        .map_err(npy)?;
+        if heatmaps {
+            for (k, (f, m)) in session.frames.iter().zip(&self.maps).enumerate() {
+                let path = dir.join(format!("heatmap_{k:05}.png"));
+                let img = m.heatmap(&f.image);
+                let mut png = Vec::new();
+                image::codecs::png::PngEncoder::new(&mut png)
+                    .write_image(
+                        &img.data,
+                        img.width,
+                        img.height,
+                        image::ExtendedColorType::Rgb8,
+                    )
+                    .map_err(|e| ModelError::Io {
+                        path: path.clone(),
+                        source: std::io::Error::other(e.to_string()),
+                    })?;
+                crate::output::write_atomic(&path, &png).map_err(io(&path))?;
+            }
+        }
+        Ok(())
+    }
+}
+
+/// How to train.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TrainConfig {
+    pub features: FeatureKind,
+    pub tile_px: u32,
+    pub train_stride_px: u32,
+    pub seed: u64,
+    pub object: Option<String>,
+    pub tree: TreeParams,
+}
+
+impl TrainConfig {
+    pub fn example_params(&self) -> ExampleParams {
+        ExampleParams {
+            features: self.features,
+            tile_px: self.tile_px,
+            train_stride_px: self.train_stride_px,
+            seed: self.seed,
+        }
+    }
+}
+
+/// Metrics of `tree` on the examples of `third`.
+pub fn third_metrics(tree: &Tree, ex: &Examples, third: Third) -> Metrics {
+    let idx: Vec<usize> = (0..ex.len()).filter(|&i| ex.thirds[i] == third).collect();
+    let p: Vec<f64> = idx
+        .par_iter()
+        .map(|&i| tree.predict_example(ex, i))
+        .collect();
+    let y: Vec<bool> = idx.iter().map(|&i| ex.labels[i]).collect();
+    metrics(&p, &y)
+}
+
+/// Builds the examples of `sessions` (see [`crate::dataset`]).
+pub fn examples(sessions: &[LoadedSession], cfg: &TrainConfig) -> Result<ExampleSet, ModelError> {
+    let set = build_examples(sessions, &cfg.example_params())?;
+    let (n, pos) = set.examples.third_counts(Third::Train);
+    if n == 0 {
+        return Err(ModelError::NoExamples {
+            sessions: sessions.len(),
+        });
+    }
+    if pos == 0 {
+        return Err(ModelError::NoPositives {
+            examples: n,
+            tile_px: cfg.tile_px,
+        });
+    }
+    Ok(set)
+}
+
+/// Grows, stops, prunes and packages the model.
+pub fn fit_model(
+    sessions: &[LoadedSession],
+    set: &ExampleSet,
+    cfg: &TrainConfig,
+) -> Result<Model, ModelError> {
+    let ex = &set.examples;
+    let (tree, fit_report) = fit(ex, &cfg.tree).map_err(ModelError::Fit)?;
+    let count = |t: Third| {
+        let (examples, positives) = ex.third_counts(t);
+        ThirdCount {
+            examples,
+            positives,
+        }
+    };
+    let train_shifted = ThirdCount {
+        examples: ex.len() - set.aligned,
+        positives: ex.labels[set.aligned..].iter().filter(|&&y| y).count(),
+    };
+    let metadata = TrainingMetadata {
+        seed: cfg.seed,
+        sessions: sessions
+            .iter()
+            .map(|s| SessionHash {
+                path: s.path.display().to_string(),
+                sha256: s.sha256.clone(),
+            })
+            .collect(),
+        object: cfg.object.clone(),
+        train_stride_px: cfg.train_stride_px,
+        tree_params: cfg.tree,
+        examples: ExampleCounts {
+            train: count(Third::Train),
+            train_shifted,
+            test: count(Third::Test),
+            prune: count(Third::Prune),
+            labelled_frames: set.labelled_frames,
+        },
+        test_metrics: third_metrics(&tree, ex, Third::Test),
+        prune_metrics: third_metrics(&tree, ex, Third::Prune),
+        fit: fit_report,
+    };
+    Ok(Model {
+        version: MODEL_VERSION,
+        features: cfg.features,
+        tile_px: cfg.tile_px,
+        base_rate: metadata.fit.base_rate,
+        tree,
+        metadata,
+    })
+}

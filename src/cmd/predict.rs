@@ -1,8 +1,63 @@
-//! `objloc predict`: placeholder until its issue lands.
+//! `objloc predict SESSION --model MODEL.json --out DIR [--heatmaps]`: per-frame tile
+//! probability maps as probs.npy / stamps.npy, optional heat maps, and tile ROC AUC against
+//! the session's labels when it has any.
+
+use std::path::PathBuf;
+
+use anyhow::Context;
+use objloc::dataset::load_session;
+use objloc::model::Model;
+
+use super::TopicArgs;
 
 #[derive(Debug, clap::Args)]
-pub struct Args {}
+pub struct Args {
+    /// The session whose frames to classify.
+    session: PathBuf,
+    /// A model written by `objloc train`.
+    #[arg(long)]
+    model: PathBuf,
+    /// Output directory (created if missing).
+    #[arg(long)]
+    out: PathBuf,
+    /// Also write a PNG heat map per frame.
+    #[arg(long)]
+    heatmaps: bool,
+    /// Score only against labels naming this object (default: the model's object, if any).
+    #[arg(long)]
+    object: Option<String>,
+    #[command(flatten)]
+    topics: TopicArgs,
+}
 
-pub fn run(_args: Args) -> anyhow::Result<()> {
-    anyhow::bail!("objloc predict is not implemented yet")
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let topics = args.topics.topics()?;
+    let model = Model::load(&args.model).context("predict: loading the model")?;
+    let object = args.object.or_else(|| model.metadata.object.clone());
+    let session = load_session(&args.session, topics, object.as_deref(), false)
+        .context("predict: reading the session")?;
+    let pred = model
+        .predict_session(&session)
+        .context("predict: classifying frames")?;
+    pred.write(&args.out, &session, args.heatmaps)
+        .context("predict: writing outputs")?;
+    let (rows, cols) = pred.maps.first().map_or((0, 0), |m| (m.rows, m.cols));
+    println!(
+        "{} frames of {rows} x {cols} tiles written to {}",
+        pred.maps.len(),
+        args.out.display()
+    );
+    match &pred.labelled {
+        Some(m) => {
+            let auc = m
+                .roc_auc
+                .map_or_else(|| "n/a (one class only)".to_owned(), |a| format!("{a:.4}"));
+            println!(
+                "labelled frames {}: {} tiles, {} positive; tile ROC AUC {auc}, log-loss {:.5}, accuracy {:.5}",
+                pred.labelled_frames, m.n, m.positives, m.log_loss, m.accuracy
+            );
+        }
+        None => println!("no labelled frames: no tile AUC"),
+    }
+    Ok(())
 }

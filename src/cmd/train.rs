@@ -1,8 +1,100 @@
-//! `objloc train`: placeholder until its issue lands.
+//! `objloc train SESSION... -o MODEL.json`: builds tile examples from labelled frames, grows
+//! and prunes the probability tree, writes the model and prints the training table.
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use anyhow::Context;
+use objloc::dataset::{export_features, load_session};
+use objloc::features::FeatureKind;
+use objloc::model::{TrainConfig, examples, fit_model};
+use objloc::tree::TreeParams;
+
+use super::TopicArgs;
 
 #[derive(Debug, clap::Args)]
-pub struct Args {}
+pub struct Args {
+    /// Labelled sessions (frames with a label on /labels are used).
+    #[arg(required = true)]
+    sessions: Vec<PathBuf>,
+    /// Where to write the model JSON.
+    #[arg(short = 'o', long = "output")]
+    output: PathBuf,
+    /// Colour quantisation of the tile histograms.
+    #[arg(long, value_enum, default_value = "hsv")]
+    features: FeatureKind,
+    /// Seed of the split into training, test and pruning thirds.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Tile side in pixels.
+    #[arg(long = "tile", default_value_t = 8)]
+    tile_px: u32,
+    /// Also train on tiles of grids shifted by multiples of this many pixels (= --tile: the
+    /// aligned grid only).
+    #[arg(long = "train-stride", default_value_t = 4)]
+    train_stride_px: u32,
+    /// Use only labels naming this object (default: every label).
+    #[arg(long)]
+    object: Option<String>,
+    /// m of the leaves' m-estimate (pos + m * base_rate) / (n + m).
+    #[arg(long = "m-estimate", default_value_t = TreeParams::default().m_estimate)]
+    m_estimate: f64,
+    /// Stop growth after this many expansions without a better test log-loss.
+    #[arg(long, default_value_t = TreeParams::default().patience)]
+    patience: usize,
+    /// Also write the examples as X.npy, y.npy, split.npy into this directory.
+    #[arg(long = "export-features", value_name = "DIR")]
+    export_features: Option<PathBuf>,
+    #[command(flatten)]
+    topics: TopicArgs,
+}
 
-pub fn run(_args: Args) -> anyhow::Result<()> {
-    anyhow::bail!("objloc train is not implemented yet")
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let topics = args.topics.topics()?;
+    let cfg = TrainConfig {
+        features: args.features,
+        tile_px: args.tile_px,
+        train_stride_px: args.train_stride_px,
+        seed: args.seed,
+        object: args.object.clone(),
+        tree: TreeParams {
+            m_estimate: args.m_estimate,
+            patience: args.patience,
+            ..TreeParams::default()
+        },
+    };
+    anyhow::ensure!(
+        cfg.tree.m_estimate.is_finite() && cfg.tree.m_estimate > 0.0,
+        "--m-estimate {} must be a positive number",
+        cfg.tree.m_estimate
+    );
+    let t0 = Instant::now();
+    let sessions = args
+        .sessions
+        .iter()
+        .map(|p| load_session(p, topics.clone(), args.object.as_deref(), true))
+        .collect::<Result<Vec<_>, _>>()
+        .context("train: reading sessions")?;
+    let t_load = t0.elapsed();
+    let t1 = Instant::now();
+    let set = examples(&sessions, &cfg).context("train: building examples")?;
+    let t_features = t1.elapsed();
+    let t2 = Instant::now();
+    let model = fit_model(&sessions, &set, &cfg).context("train: fitting the tree")?;
+    let t_fit = t2.elapsed();
+    model
+        .save(&args.output)
+        .context("train: writing the model")?;
+    if let Some(dir) = &args.export_features {
+        export_features(&set, dir).context("train: exporting features")?;
+    }
+    print!("{}", model.summary_table());
+    println!(
+        "time: load+decode {:.3} s, features {:.3} s, fit time {:.4} s",
+        t_load.as_secs_f64(),
+        t_features.as_secs_f64(),
+        t_fit.as_secs_f64()
+    );
+    println!("model written to {}", args.output.display());
+    Ok(())
 }

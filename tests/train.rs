@@ -1,0 +1,380 @@
+//! `objloc train` and `objloc predict` end to end on synthetic sessions with known answers: a
+//! red box (lit and shaded halves) on a textured background of greens, greys, blues and
+//! browns, labelled exactly; background frames with an empty label; unlabelled frames.
+//!
+//! Invariants: every pixel comes from a fixed hash of its coordinates and the frame index, so
+//! the sessions, and hence the models, are the same on every run.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use objloc::msgs::{CompressedImage, Header, ObjectLabel, RegionOfInterest};
+use objloc::session::SessionWriter;
+
+const W: u32 = 256;
+const H: u32 = 240;
+const T0_NS: i64 = 1_700_000_000_000_000_000;
+const PERIOD_NS: i64 = 100_000_000;
+
+fn hash(mut x: u64) -> u64 {
+    x = (x ^ (x >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    x = (x ^ (x >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    x ^ (x >> 31)
+}
+
+/// A frame with the box at `rect` (x, y, w, h), or none.
+fn render(k: u64, rect: Option<(u32, u32, u32, u32)>) -> Vec<u8> {
+    const PALETTE: [[u8; 3]; 6] = [
+        [60, 130, 60],
+        [120, 120, 120],
+        [70, 90, 170],
+        [140, 100, 60],
+        [200, 200, 190],
+        [40, 60, 40],
+    ];
+    let mut data = Vec::with_capacity((W * H * 3) as usize);
+    for y in 0..H {
+        for x in 0..W {
+            let block = hash(k * 7919 + (y / 16) as u64 * 131 + (x / 16) as u64) as usize;
+            let mut rgb = PALETTE[block % PALETTE.len()];
+            if let Some((rx, ry, rw, rh)) = rect
+                && x >= rx
+                && x < rx + rw
+                && y >= ry
+                && y < ry + rh
+            {
+                // Lit upper half, shaded lower half: same hue, different value.
+                rgb = if y < ry + rh / 2 {
+                    [210, 35, 40]
+                } else {
+                    [120, 20, 25]
+                };
+            }
+            let n = hash((k << 40) ^ ((y as u64) << 20) ^ x as u64);
+            for (c, v) in rgb.iter_mut().enumerate() {
+                let d = ((n >> (8 * c)) % 21) as i32 - 10;
+                *v = (*v as i32 + d).clamp(0, 255) as u8;
+            }
+            data.extend_from_slice(&rgb);
+        }
+    }
+    data
+}
+
+fn png(data: &[u8]) -> Vec<u8> {
+    use image::ImageEncoder;
+    let mut out = Vec::new();
+    image::codecs::png::PngEncoder::new(&mut out)
+        .write_image(data, W, H, image::ExtendedColorType::Rgb8)
+        .unwrap();
+    out
+}
+
+enum Kind {
+    Object(u32, u32, u32, u32),
+    Background,
+    Unlabelled,
+}
+
+fn write_session(path: &Path, seed: u64, frames: &[Kind]) -> Vec<i64> {
+    let mut w = SessionWriter::create(path).unwrap();
+    let mut stamps = Vec::new();
+    for (k, kind) in frames.iter().enumerate() {
+        let stamp = T0_NS + k as i64 * PERIOD_NS;
+        stamps.push(stamp);
+        let rect = match kind {
+            Kind::Object(x, y, w, h) => Some((*x, *y, *w, *h)),
+            _ => None,
+        };
+        let img = CompressedImage {
+            header: Header::new(stamp, "camera_optical_frame"),
+            format: "png".into(),
+            data: png(&render(seed * 1000 + k as u64, rect)),
+        };
+        w.write("/camera/image/compressed", stamp, &img).unwrap();
+        let regions = match kind {
+            Kind::Object(x, y, wd, ht) => vec![RegionOfInterest {
+                x_offset: *x,
+                y_offset: *y,
+                height: *ht,
+                width: *wd,
+                do_rectify: false,
+            }],
+            _ => vec![],
+        };
+        if !matches!(kind, Kind::Unlabelled) {
+            let label = ObjectLabel {
+                header: Header::new(stamp, "camera_optical_frame"),
+                object: "box".into(),
+                regions,
+            };
+            w.write("/labels", stamp, &label).unwrap();
+        }
+    }
+    w.finish().unwrap();
+    stamps
+}
+
+fn train_session(dir: &Path) -> PathBuf {
+    let p = dir.join("train.mcap");
+    let mut frames = Vec::new();
+    for k in 0..12u32 {
+        frames.push(Kind::Object(
+            20 + k * 17,
+            30 + k * 11,
+            30 + k % 4 * 6,
+            40 + k % 3 * 8,
+        ));
+    }
+    for _ in 0..6 {
+        frames.push(Kind::Background);
+    }
+    frames.push(Kind::Unlabelled);
+    write_session(&p, 1, &frames);
+    p
+}
+
+fn objloc(args: &[&std::ffi::OsStr]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_objloc"))
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+fn os<S: AsRef<std::ffi::OsStr> + ?Sized>(s: &S) -> &std::ffi::OsStr {
+    s.as_ref()
+}
+
+fn ok(out: &Output) -> String {
+    let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
+    assert!(
+        out.status.success(),
+        "stdout: {stdout}\nstderr: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    stdout
+}
+
+fn read_npy_header(path: &Path) -> (String, usize) {
+    let b = std::fs::read(path).unwrap();
+    let hlen = u16::from_le_bytes([b[8], b[9]]) as usize;
+    (
+        String::from_utf8_lossy(&b[10..10 + hlen]).into_owned(),
+        b.len() - 10 - hlen,
+    )
+}
+
+#[test]
+fn train_then_predict_finds_the_box() {
+    let dir = tempfile::tempdir().unwrap();
+    let train = train_session(dir.path());
+    let model = dir.path().join("model.json");
+    let feats = dir.path().join("feats");
+    let out = objloc(&[
+        os("train"),
+        train.as_os_str(),
+        os("-o"),
+        model.as_os_str(),
+        os("--export-features"),
+        feats.as_os_str(),
+    ]);
+    let text = ok(&out);
+    assert!(text.contains("before pruning"), "{text}");
+    assert!(text.contains("fraction of pixels in bin"), "{text}");
+
+    let m: serde_json::Value = serde_json::from_slice(&std::fs::read(&model).unwrap()).unwrap();
+    assert_eq!(m["version"], 1);
+    assert_eq!(m["features"], "hsv");
+    assert_eq!(m["tile_px"], 8);
+    let meta = &m["metadata"];
+    // 18 labelled frames x 30 rows x 32 cols = 17280 aligned tiles, in thirds of 5760.
+    assert_eq!(meta["examples"]["labelled_frames"], 18);
+    assert_eq!(meta["examples"]["test"]["examples"], 5760);
+    assert_eq!(meta["examples"]["prune"]["examples"], 5760);
+    // Stride 4: 3 shifted grids per frame, each (29 or 30) x (31 or 32) whole tiles:
+    // (30*31 + 29*32 + 29*31) * 18 = (930 + 928 + 899) * 18 = 49626.
+    assert_eq!(meta["examples"]["train_shifted"]["examples"], 49626);
+    assert_eq!(meta["examples"]["train"]["examples"], 5760 + 49626);
+    let hash = meta["sessions"][0]["sha256"].as_str().unwrap();
+    assert_eq!(
+        hash,
+        objloc::dataset::sha256_hex(&std::fs::read(&train).unwrap())
+    );
+    let auc = meta["test_metrics"]["roc_auc"].as_f64().unwrap();
+    assert!(auc > 0.97, "test AUC {auc}");
+    let base = m["base_rate"].as_f64().unwrap();
+    assert!(base > 0.005 && base < 0.05, "base rate {base}");
+
+    // Exported examples: every example, 256 float32 features each.
+    let n_examples = 5760 * 3 + 49626;
+    let (hx, bytes) = read_npy_header(&feats.join("X.npy"));
+    assert!(
+        hx.contains(&format!("'shape': ({n_examples}, 256)")),
+        "{hx}"
+    );
+    assert_eq!(bytes, n_examples * 256 * 4);
+    let (hs, _) = read_npy_header(&feats.join("split.npy"));
+    assert!(hs.contains("'|u1'"), "{hs}");
+
+    // A new session with the box elsewhere and at other sizes.
+    let tour = dir.path().join("tour.mcap");
+    let stamps = write_session(
+        &tour,
+        2,
+        &[
+            Kind::Object(100, 40, 40, 60),
+            Kind::Object(10, 150, 36, 48),
+            Kind::Background,
+            Kind::Unlabelled,
+        ],
+    );
+    let pred = dir.path().join("pred");
+    let text = ok(&objloc(&[
+        os("predict"),
+        tour.as_os_str(),
+        os("--model"),
+        model.as_os_str(),
+        os("--out"),
+        pred.as_os_str(),
+        os("--heatmaps"),
+    ]));
+    let auc: f64 = text
+        .split("tile ROC AUC ")
+        .nth(1)
+        .and_then(|s| s.split(',').next())
+        .and_then(|s| s.parse().ok())
+        .unwrap_or_else(|| panic!("no AUC in {text}"));
+    assert!(auc > 0.97, "{text}");
+    // 3 labelled frames x 960 tiles. Positives: box 1 (x 100..140, y 40..100) holds cols
+    // 13..=16 and rows 5..=11 whole: 4 x 7 = 28; box 2 (x 10..46, y 150..198) holds cols
+    // 2..=4 and rows 19..=23: 3 x 5 = 15; total 43.
+    assert!(text.contains("2880 tiles, 43 positive"), "{text}");
+    let (probs, data) = objloc::npy::read_f32(&pred.join("probs.npy")).unwrap();
+    assert_eq!(probs, vec![4, 30, 32]);
+    // Tile (row 6, col 14) is inside box 1 of frame 0; tile (0, 0) is background.
+    assert!(data[6 * 32 + 14] > 0.5, "{}", data[6 * 32 + 14]);
+    assert!(data[0] < 0.05, "{}", data[0]);
+    let (hs, bytes) = read_npy_header(&pred.join("stamps.npy"));
+    assert!(hs.contains("'<i8'") && hs.contains("(4,)"), "{hs}");
+    let raw = std::fs::read(pred.join("stamps.npy")).unwrap();
+    let last = i64::from_le_bytes(raw[raw.len() - 8..].try_into().unwrap());
+    assert_eq!((bytes, last), (32, stamps[3]));
+    assert!(pred.join("heatmap_00003.png").exists());
+}
+
+#[test]
+fn model_is_identical_for_any_thread_count_and_stride_one_grid_has_no_shifted_tiles() {
+    let dir = tempfile::tempdir().unwrap();
+    let train = train_session(dir.path());
+    let mut bytes = Vec::new();
+    for threads in ["1", "2"] {
+        let model = dir.path().join(format!("m{threads}.json"));
+        let out = Command::new(env!("CARGO_BIN_EXE_objloc"))
+            .env("RAYON_NUM_THREADS", threads)
+            .args([os("train"), train.as_os_str(), os("-o"), model.as_os_str()])
+            .args(["--features", "rgb332", "--train-stride", "8", "--seed", "3"])
+            .output()
+            .unwrap();
+        ok(&out);
+        bytes.push(std::fs::read(&model).unwrap());
+    }
+    assert_eq!(bytes[0], bytes[1]);
+    let m: serde_json::Value = serde_json::from_slice(&bytes[0]).unwrap();
+    assert_eq!(m["features"], "rgb332");
+    assert_eq!(m["metadata"]["seed"], 3);
+    assert_eq!(m["metadata"]["examples"]["train_shifted"]["examples"], 0);
+    assert_eq!(m["metadata"]["examples"]["train"]["examples"], 5760);
+}
+
+#[test]
+fn bad_inputs_fail_with_one_line_and_no_output() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = dir.path().join("model.json");
+    // Missing session file.
+    let missing = dir.path().join("nope.mcap");
+    let out = objloc(&[
+        os("train"),
+        missing.as_os_str(),
+        os("-o"),
+        model.as_os_str(),
+    ]);
+    assert_eq!(out.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("nope.mcap") && err.lines().count() == 1,
+        "{err}"
+    );
+    assert!(!model.exists());
+
+    // A session whose frames carry no label at all.
+    let unlabelled = dir.path().join("unlabelled.mcap");
+    write_session(&unlabelled, 3, &[Kind::Unlabelled, Kind::Unlabelled]);
+    let out = objloc(&[
+        os("train"),
+        unlabelled.as_os_str(),
+        os("-o"),
+        model.as_os_str(),
+    ]);
+    assert_eq!(out.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("no labelled frames"), "{err}");
+    assert!(!model.exists());
+
+    // Only background frames: no positive tile to learn from. Training tiles: a third of
+    // 2 x 960 aligned plus 2 x 2757 shifted = 640 + 5514.
+    let bg = dir.path().join("bg.mcap");
+    write_session(&bg, 4, &[Kind::Background, Kind::Background]);
+    let out = objloc(&[os("train"), bg.as_os_str(), os("-o"), model.as_os_str()]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("none of the 6154 training tiles is positive"),
+        "{err}"
+    );
+
+    // Models of another version or feature spec are refused, naming the file.
+    let train = train_session(dir.path());
+    ok(&objloc(&[
+        os("train"),
+        train.as_os_str(),
+        os("-o"),
+        model.as_os_str(),
+    ]));
+    let text = std::fs::read_to_string(&model).unwrap();
+    for (name, from, to, expect) in [
+        (
+            "v2.json",
+            "\"version\": 1",
+            "\"version\": 2",
+            "model version 2 is not supported",
+        ),
+        (
+            "feat.json",
+            "\"features\": \"hsv\"",
+            "\"features\": \"lab\"",
+            "feature spec \"lab\" is not known",
+        ),
+        (
+            "tile.json",
+            "\"tile_px\": 8",
+            "\"tile_px\": 0",
+            "tile size 0 px",
+        ),
+    ] {
+        let bad = dir.path().join(name);
+        std::fs::write(&bad, text.replacen(from, to, 1)).unwrap();
+        let out_dir = dir.path().join("out");
+        let out = objloc(&[
+            os("predict"),
+            train.as_os_str(),
+            os("--model"),
+            bad.as_os_str(),
+            os("--out"),
+            out_dir.as_os_str(),
+        ]);
+        assert_eq!(out.status.code(), Some(1));
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(err.contains(name) && err.contains(expect), "{err}");
+        assert!(!out_dir.exists());
+    }
+}
