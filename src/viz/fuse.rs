@@ -1,0 +1,498 @@
+//! The fuser in Rerun: an [`Observer`] that streams each replay step (robot pose and
+//! trajectories, camera frame and tile probabilities, pyramids, the belief grid, objects,
+//! projections and plots). Entity paths are listed in docs/rerun.md.
+//!
+//! Invariants: everything logged is a function of the replay step and the grid (no clock, no
+//! randomness, cells and tiles visited in index order), stamped on the `log_time` timeline
+//! with the frame's MCAP log time and on `frame` with its index; session-wide things (camera
+//! mount, intrinsics, ground-truth boxes) are static. Observing never changes the replay.
+
+use nalgebra::Point3;
+use rerun::RecordingStream;
+
+use super::{TIMELINE_FRAME, TIMELINE_LOG_TIME, VizError, log_err, viridis};
+use crate::geometry::{Camera, Iso3, iso_from_pose};
+use crate::grid::{Grid, sigmoid};
+use crate::objects::{Object, ObjectParams, find_objects};
+use crate::replay::{FrameStep, Observer, SessionData, TileProbs};
+use crate::session::Rgb8;
+
+/// What the fuse stream shows.
+#[derive(Debug, Clone, PartialEq)]
+pub struct VizOptions {
+    /// Cells shown in `world/grid`: posterior above this...
+    pub grid_min_posterior: f32,
+    /// ...and seen by at least this many frames.
+    pub grid_min_views: u16,
+    /// Tiles whose pyramid is drawn in `world/pyramids`.
+    pub pyramid_min_p: f32,
+    /// Length of the drawn pyramids along the optical axis, metres.
+    pub pyramid_depth_m: f64,
+    /// How `world/objects/estimated` is found each frame (use the fuse's own parameters).
+    pub objects: ObjectParams,
+}
+
+impl Default for VizOptions {
+    fn default() -> Self {
+        Self {
+            grid_min_posterior: 0.5,
+            grid_min_views: 2,
+            pyramid_min_p: 0.5,
+            pyramid_depth_m: 3.0,
+            objects: ObjectParams::default(),
+        }
+    }
+}
+
+const TRUTH_RGB: [u8; 3] = [255, 140, 0];
+const ESTIMATE_RGB: [u8; 3] = [0, 200, 255];
+const ODOM_RGB: [u8; 3] = [220, 220, 220];
+
+/// Streams a replay to a recording.
+pub struct FuseViz {
+    rec: RecordingStream,
+    options: VizOptions,
+}
+
+impl FuseViz {
+    pub fn new(rec: RecordingStream, options: VizOptions) -> Self {
+        Self { rec, options }
+    }
+}
+
+/// Whole-grid numbers and the cells worth showing, in one pass over the grid.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GridSummary {
+    pub max_posterior: f64,
+    /// Mean binary entropy of a cell, bits.
+    pub mean_entropy_bits: f64,
+    /// (i, j, k) and posterior of the shown cells, in index order.
+    pub cells: Vec<([i32; 3], f32)>,
+    /// Mean posterior along x: ny x nz, row-major as an image with z up (row 0 = top z).
+    pub along_x: Vec<f32>,
+    /// Mean posterior along y: nx wide, nz high, z up.
+    pub along_y: Vec<f32>,
+    /// Mean posterior along z: nx wide, ny high, y up.
+    pub along_z: Vec<f32>,
+}
+
+fn binary_entropy_bits(p: f64) -> f64 {
+    let h = |q: f64| if q > 0.0 { -q * q.log2() } else { 0.0 };
+    h(p) + h(1.0 - p)
+}
+
+pub fn summarize_grid(grid: &Grid, min_posterior: f32, min_views: u16) -> GridSummary {
+    let [nx, ny, nz] = grid.spec.dims;
+    let mut along_x = vec![0f64; ny * nz];
+    let mut along_y = vec![0f64; nx * nz];
+    let mut along_z = vec![0f64; nx * ny];
+    let mut cells = Vec::new();
+    let mut max_l = f32::NEG_INFINITY;
+    let mut entropy = 0.0;
+    for i in 0..nx {
+        for j in 0..ny {
+            for k in 0..nz {
+                let idx = grid.spec.index(i, j, k);
+                let l = grid.log_odds[idx];
+                max_l = max_l.max(l);
+                let p = sigmoid(f64::from(l));
+                entropy += binary_entropy_bits(p);
+                let (rz, ry) = (nz - 1 - k, ny - 1 - j);
+                along_x[rz * ny + j] += p;
+                along_y[rz * nx + i] += p;
+                along_z[ry * nx + i] += p;
+                if p as f32 > min_posterior && grid.views[idx] >= min_views {
+                    cells.push(([i as i32, j as i32, k as i32], p as f32));
+                }
+            }
+        }
+    }
+    let n = grid.spec.cells().max(1) as f64;
+    let mean = |v: Vec<f64>, d: usize| v.into_iter().map(|s| (s / d as f64) as f32).collect();
+    GridSummary {
+        max_posterior: sigmoid(f64::from(max_l)),
+        mean_entropy_bits: entropy / n,
+        cells,
+        along_x: mean(along_x, nx),
+        along_y: mean(along_y, ny),
+        along_z: mean(along_z, nz),
+    }
+}
+
+/// Tile probabilities as one f32 per image pixel (0 outside whole tiles: "no value").
+pub fn upscale(probs: &TileProbs, width: u32, height: u32) -> Vec<f32> {
+    let t = probs.tile_px.max(1) as usize;
+    let mut out = vec![0f32; width as usize * height as usize];
+    for y in 0..height as usize {
+        let r = y / t;
+        if r >= probs.rows {
+            break;
+        }
+        for x in 0..(width as usize).min(probs.cols * t) {
+            out[y * width as usize + x] = probs.p[r * probs.cols + x / t];
+        }
+    }
+    out
+}
+
+/// Line strips of the pyramids of tiles with p > `min_p`: four edges from the eye and the far
+/// rectangle at `depth_m` along the optical axis, in odom, with each tile's probability.
+pub fn pyramids(
+    camera: &Camera,
+    odom_from_camera: &Iso3,
+    probs: &TileProbs,
+    min_p: f32,
+    depth_m: f64,
+) -> Vec<(Vec<[f32; 3]>, f32)> {
+    let eye = odom_from_camera.translation.vector;
+    let eye = [eye.x as f32, eye.y as f32, eye.z as f32];
+    let t = f64::from(probs.tile_px);
+    let far = |u: f64, v: f64| {
+        let r = camera.ray(u, v);
+        let p = odom_from_camera * Point3::from(r * (depth_m / r.z));
+        [p.x as f32, p.y as f32, p.z as f32]
+    };
+    let mut out = Vec::new();
+    for r in 0..probs.rows {
+        for c in 0..probs.cols {
+            let p = probs.p[r * probs.cols + c];
+            if p.is_nan() || p <= min_p {
+                continue;
+            }
+            let (u0, v0) = (c as f64 * t, r as f64 * t);
+            let corners = [
+                far(u0, v0),
+                far(u0 + t, v0),
+                far(u0 + t, v0 + t),
+                far(u0, v0 + t),
+            ];
+            for k in corners {
+                out.push((vec![eye, k], p));
+            }
+            let mut rect = corners.to_vec();
+            rect.push(corners[0]);
+            out.push((rect, p));
+        }
+    }
+    out
+}
+
+fn translation_rotation(iso: &Iso3) -> ([f32; 3], rerun::Quaternion) {
+    let t = iso.translation.vector;
+    let q = iso.rotation.quaternion().coords; // (x, y, z, w)
+    (
+        [t.x as f32, t.y as f32, t.z as f32],
+        rerun::Quaternion::from_xyzw([q.x as f32, q.y as f32, q.z as f32, q.w as f32]),
+    )
+}
+
+fn transform(iso: &Iso3) -> rerun::Transform3D {
+    let (t, q) = translation_rotation(iso);
+    rerun::Transform3D::from_translation_rotation(t, q)
+}
+
+fn position(iso: &Iso3) -> [f32; 3] {
+    translation_rotation(iso).0
+}
+
+fn track_until(track: &[(i64, Iso3)], stamp_ns: i64) -> Vec<[f32; 3]> {
+    track
+        .iter()
+        .take_while(|(t, _)| *t <= stamp_ns)
+        .map(|(_, p)| position(p))
+        .collect()
+}
+
+/// Ground-truth boxes: centres, half sizes, rotations, labels.
+fn truth_boxes(data: &SessionData) -> Option<rerun::Boxes3D> {
+    let gt = data.ground_truth.as_ref()?;
+    let mut centers = Vec::new();
+    let mut halves = Vec::new();
+    let mut rots = Vec::new();
+    let mut labels = Vec::new();
+    for ((name, pose), size) in gt.object.iter().zip(&gt.box_center).zip(&gt.box_size) {
+        let Some(iso) = iso_from_pose(pose) else {
+            continue;
+        };
+        let (t, q) = translation_rotation(&iso);
+        centers.push(t);
+        halves.push([
+            size[0] as f32 / 2.0,
+            size[1] as f32 / 2.0,
+            size[2] as f32 / 2.0,
+        ]);
+        rots.push(q);
+        labels.push(format!("{name} (truth)"));
+    }
+    Some(
+        rerun::Boxes3D::from_centers_and_half_sizes(centers, halves)
+            .with_quaternions(rots)
+            .with_labels(labels)
+            .with_colors([rerun::Color::from_rgb(
+                TRUTH_RGB[0],
+                TRUTH_RGB[1],
+                TRUTH_RGB[2],
+            )]),
+    )
+}
+
+/// Distance from the first (most massive) object's centroid to the nearest true box centre.
+pub fn centroid_error_m(objects: &[Object], data: &SessionData) -> Option<f64> {
+    let o = objects.first()?;
+    let gt = data.ground_truth.as_ref()?;
+    gt.box_center
+        .iter()
+        .map(|c| {
+            let d: f64 = (0..3)
+                .map(|a| (o.centroid_m[a] - c.position[a]).powi(2))
+                .sum();
+            d.sqrt()
+        })
+        .min_by(f64::total_cmp)
+}
+
+fn depth_image(p: Vec<f32>, width: u32, height: u32) -> rerun::DepthImage {
+    let bytes: Vec<u8> = p.iter().flat_map(|v| v.to_le_bytes()).collect();
+    rerun::DepthImage::from_data_type_and_bytes(bytes, [width, height], rerun::ChannelDatatype::F32)
+        .with_meter(1.0)
+        .with_colormap(rerun::components::Colormap::Viridis)
+        .with_depth_range([0.0, 1.0])
+}
+
+/// Viridis RGBA overlay: alpha grows with p so that confident tiles tint the frame.
+pub fn overlay_rgba(p: &[f32]) -> Vec<u8> {
+    let mut out = Vec::with_capacity(p.len() * 4);
+    for &v in p {
+        let [r, g, b] = viridis(v);
+        let a = if v > 0.0 {
+            (40.0 + 180.0 * v.clamp(0.0, 1.0)).round() as u8
+        } else {
+            0
+        };
+        out.extend_from_slice(&[r, g, b, a]);
+    }
+    out
+}
+
+/// Logs a frame, its tile probabilities (hoverable f32) and a viridis overlay under `base`.
+pub(crate) fn log_frame_and_probs(
+    rec: &RecordingStream,
+    base: &str,
+    image: &Rgb8,
+    probs: &TileProbs,
+) -> Result<(), VizError> {
+    rec.log(
+        format!("{base}/image"),
+        &rerun::Image::from_rgb24(image.data.clone(), [image.width, image.height]),
+    )
+    .map_err(log_err)?;
+    let p = upscale(probs, image.width, image.height);
+    rec.log(
+        format!("{base}/overlay"),
+        &rerun::Image::from_rgba32(overlay_rgba(&p), [image.width, image.height])
+            .with_draw_order(10.0),
+    )
+    .map_err(log_err)?;
+    rec.log(
+        format!("{base}/probability"),
+        &depth_image(p, image.width, image.height),
+    )
+    .map_err(log_err)?;
+    Ok(())
+}
+
+fn projection(
+    rec: &RecordingStream,
+    path: &str,
+    v: &[f32],
+    w: usize,
+    h: usize,
+) -> Result<(), VizError> {
+    let max = v.iter().copied().fold(0f32, f32::max).max(1e-6);
+    let bytes: Vec<u8> = v.iter().flat_map(|x| x.to_le_bytes()).collect();
+    let img = rerun::DepthImage::from_data_type_and_bytes(
+        bytes,
+        [w as u32, h as u32],
+        rerun::ChannelDatatype::F32,
+    )
+    .with_meter(1.0)
+    .with_colormap(rerun::components::Colormap::Viridis)
+    .with_depth_range([0.0, f64::from(max)]);
+    rec.log(path, &img).map_err(log_err)
+}
+
+fn scalar(rec: &RecordingStream, path: &str, v: f64) -> Result<(), VizError> {
+    rec.log(path, &rerun::Scalars::single(v)).map_err(log_err)
+}
+
+impl FuseViz {
+    fn start(&mut self, data: &SessionData, grid: &Grid) -> Result<(), VizError> {
+        let rec = &self.rec;
+        rec.log_static("world", &rerun::ViewCoordinates::RIGHT_HAND_Z_UP())
+            .map_err(log_err)?;
+        rec.log_static("world/robot/camera", &transform(&data.base_from_camera))
+            .map_err(log_err)?;
+        let c = &data.camera;
+        rec.log_static(
+            "world/robot/camera",
+            &rerun::Pinhole::from_focal_length_and_resolution(
+                [c.fx as f32, c.fy as f32],
+                [c.width as f32, c.height as f32],
+            )
+            .with_principal_point([c.cx as f32, c.cy as f32])
+            .with_image_plane_distance(0.5),
+        )
+        .map_err(log_err)?;
+        let lo = grid.spec.origin_m;
+        let hi = grid.spec.max_m();
+        rec.log_static(
+            "world/grid/bounds",
+            &rerun::Boxes3D::from_mins_and_sizes(
+                [[lo[0] as f32, lo[1] as f32, lo[2] as f32]],
+                [[
+                    (hi[0] - lo[0]) as f32,
+                    (hi[1] - lo[1]) as f32,
+                    (hi[2] - lo[2]) as f32,
+                ]],
+            )
+            .with_colors([rerun::Color::from_rgb(120, 120, 120)]),
+        )
+        .map_err(log_err)?;
+        if let Some(b) = truth_boxes(data) {
+            rec.log_static("world/objects/truth", &b).map_err(log_err)?;
+        }
+        Ok(())
+    }
+
+    fn frame(&mut self, data: &SessionData, step: &FrameStep, grid: &Grid) -> Result<(), VizError> {
+        let rec = &self.rec;
+        let o = &self.options;
+        rec.set_time(
+            TIMELINE_LOG_TIME,
+            rerun::TimeCell::from_timestamp_nanos_since_epoch(
+                step.frame.log_time_ns.min(i64::MAX as u64) as i64,
+            ),
+        );
+        rec.set_time_sequence(TIMELINE_FRAME, step.index as i64);
+
+        rec.log("world/robot", &transform(&step.odom_from_base))
+            .map_err(log_err)?;
+        let stamp = step.frame.stamp_ns;
+        rec.log(
+            "world/trajectory/odom",
+            &rerun::LineStrips3D::new([track_until(&data.odom, stamp)]).with_colors([
+                rerun::Color::from_rgb(ODOM_RGB[0], ODOM_RGB[1], ODOM_RGB[2]),
+            ]),
+        )
+        .map_err(log_err)?;
+        if !data.ground_truth_poses.is_empty() {
+            rec.log(
+                "world/trajectory/truth",
+                &rerun::LineStrips3D::new([track_until(&data.ground_truth_poses, stamp)])
+                    .with_colors([rerun::Color::from_rgb(
+                        TRUTH_RGB[0],
+                        TRUTH_RGB[1],
+                        TRUTH_RGB[2],
+                    )]),
+            )
+            .map_err(log_err)?;
+        }
+
+        log_frame_and_probs(rec, "world/robot/camera", &step.image, &step.probs)?;
+
+        let strips = pyramids(
+            &data.camera,
+            &step.odom_from_camera,
+            &step.probs,
+            o.pyramid_min_p,
+            o.pyramid_depth_m,
+        );
+        let colors: Vec<rerun::Color> = strips
+            .iter()
+            .map(|(_, p)| {
+                let [r, g, b] = viridis(*p);
+                rerun::Color::from_rgb(r, g, b)
+            })
+            .collect();
+        rec.log(
+            "world/pyramids",
+            &rerun::LineStrips3D::new(strips.into_iter().map(|(s, _)| s))
+                .with_colors(colors)
+                .with_radii([rerun::Radius::new_ui_points(0.75)]),
+        )
+        .map_err(log_err)?;
+
+        let s = summarize_grid(grid, o.grid_min_posterior, o.grid_min_views);
+        let v = grid.spec.voxel_size_m as f32;
+        let origin = grid.spec.origin_m;
+        let (idx, vals): (Vec<[i32; 3]>, Vec<f32>) = s.cells.iter().copied().unzip();
+        rec.log(
+            "world/grid",
+            &rerun::VoxelGridMap::new(idx, [v, v, v])
+                .with_values(vals)
+                .with_translation([origin[0] as f32, origin[1] as f32, origin[2] as f32])
+                .with_colormap(rerun::components::Colormap::Viridis)
+                .with_value_range([f64::from(o.grid_min_posterior), 1.0]),
+        )
+        .map_err(log_err)?;
+        let [nx, ny, nz] = grid.spec.dims;
+        projection(rec, "projections/x", &s.along_x, ny, nz)?;
+        projection(rec, "projections/y", &s.along_y, nx, nz)?;
+        projection(rec, "projections/z", &s.along_z, nx, ny)?;
+
+        let objects = find_objects(grid, &o.objects);
+        let boxes = rerun::Boxes3D::from_mins_and_sizes(
+            objects.iter().map(|b| b.bbox_min_m.map(|x| x as f32)),
+            objects
+                .iter()
+                .map(|b| [0, 1, 2].map(|a| (b.bbox_max_m[a] - b.bbox_min_m[a]) as f32)),
+        )
+        .with_labels(objects.iter().enumerate().map(|(i, b)| {
+            format!(
+                "object {i}: {} cells, peak p {:.3}",
+                b.cells, b.peak_probability
+            )
+        }))
+        .with_colors([rerun::Color::from_rgb(
+            ESTIMATE_RGB[0],
+            ESTIMATE_RGB[1],
+            ESTIMATE_RGB[2],
+        )]);
+        rec.log("world/objects/estimated", &boxes)
+            .map_err(log_err)?;
+        rec.log(
+            "world/objects/centroids",
+            &rerun::Points3D::new(objects.iter().map(|b| b.centroid_m.map(|x| x as f32)))
+                .with_colors([rerun::Color::from_rgb(
+                    ESTIMATE_RGB[0],
+                    ESTIMATE_RGB[1],
+                    ESTIMATE_RGB[2],
+                )])
+                .with_radii([rerun::Radius::new_ui_points(6.0)]),
+        )
+        .map_err(log_err)?;
+
+        scalar(rec, "plots/max_posterior", s.max_posterior)?;
+        scalar(rec, "plots/mean_entropy_bits", s.mean_entropy_bits)?;
+        scalar(rec, "plots/cells_updated", step.cells_updated as f64)?;
+        scalar(rec, "plots/objects", objects.len() as f64)?;
+        if let Some(e) = centroid_error_m(&objects, data) {
+            scalar(rec, "plots/centroid_error_m", e)?;
+        }
+        Ok(())
+    }
+}
+
+impl Observer for FuseViz {
+    fn on_start(&mut self, data: &SessionData, grid: &Grid) -> anyhow::Result<()> {
+        Ok(self.start(data, grid)?)
+    }
+    fn on_frame(
+        &mut self,
+        data: &SessionData,
+        step: &FrameStep,
+        grid: &Grid,
+    ) -> anyhow::Result<()> {
+        Ok(self.frame(data, step, grid)?)
+    }
+}

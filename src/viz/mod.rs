@@ -1,0 +1,404 @@
+//! Visual debugging in Rerun: where a command's recording goes (`--save`, `--spawn`,
+//! `--connect`, `--stdout`, or by default an `.rrd` beside the report), the default layout,
+//! and the shared colour map. [`fuse`] streams the fuser, [`train`] the decision tree.
+//!
+//! Invariants: a recording is a pure function of the command's inputs. Its recording id is a
+//! hash of them ([`recording_id`]); the only timelines are `log_time` (the MCAP log time,
+//! ns) and `frame` (a sequence): the SDK's wall-clock `log_time` and `log_tick` are turned off
+//! before anything is logged, and the recording-properties chunk (start time) is never sent.
+//! Row and chunk ids (TUIDs) are the SDK's own and differ between runs; `rerun rrd compare`
+//! ignores them. A saved file is written as `NAME.partial` and renamed when complete.
+
+pub mod fuse;
+pub mod train;
+
+use std::path::{Path, PathBuf};
+
+use rerun::{RecordingStream, RecordingStreamBuilder};
+use sha2::{Digest, Sha256};
+use thiserror::Error;
+
+/// The Rerun application id of every objloc recording.
+pub const APP_ID: &str = "objloc";
+
+/// Timeline of MCAP log times (a timestamp, ns since the epoch of the session's clock).
+pub const TIMELINE_LOG_TIME: &str = "log_time";
+/// Timeline of fused frames (0, 1, 2, ...).
+pub const TIMELINE_FRAME: &str = "frame";
+
+#[derive(Debug, Error)]
+pub enum VizError {
+    #[error("rerun: {0}")]
+    Stream(#[from] rerun::RecordingStreamError),
+    #[error("rerun: cannot create {path}: {what}")]
+    Create { path: String, what: String },
+    #[error("rerun: flushing the recording: {0}")]
+    Flush(String),
+    #[error("rerun: renaming {from} to {to}: {source}")]
+    Rename {
+        from: String,
+        to: String,
+        source: std::io::Error,
+    },
+    #[error("rerun: {0}")]
+    Log(String),
+}
+
+/// Where the recording goes, decided from the Rerun flags as given on the command line.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Target {
+    /// No Rerun flag given: save to the command's default `.rrd`.
+    Default,
+    Save(PathBuf),
+    Spawn,
+    Connect(String),
+    Stdout,
+}
+
+/// The standard Rerun flags ([`rerun::clap::RerunArgs`]) and where they send the recording:
+/// RerunArgs' `--spawn` defaults to true and its fields are private, so the choice is read
+/// from clap's value sources here (a flag counts only when given on the command line). Flatten it into a command's `Args`:
+/// `#[command(flatten)] pub rerun: objloc::viz::VizArgs`.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct VizArgs {
+    pub target: Target,
+}
+
+impl VizArgs {
+    /// As if no Rerun flag had been given (for library callers and tests).
+    pub fn headless() -> Self {
+        Self {
+            target: Target::Default,
+        }
+    }
+}
+
+fn target_from_matches(m: &clap::ArgMatches) -> Target {
+    use clap::parser::ValueSource;
+    let given = |id: &str| {
+        m.try_get_raw(id).is_ok() && m.value_source(id) == Some(ValueSource::CommandLine)
+    };
+    // Same precedence as RerunArgs: stdout, save, (serve), connect, spawn.
+    if given("stdout") && m.get_flag("stdout") {
+        return Target::Stdout;
+    }
+    if given("save") {
+        if let Some(p) = m.get_one::<PathBuf>("save") {
+            return Target::Save(p.clone());
+        }
+    }
+    if given("connect") {
+        let url = m
+            .get_one::<String>("connect")
+            .cloned()
+            .unwrap_or_else(|| rerun::DEFAULT_CONNECT_URL.to_owned());
+        return Target::Connect(url);
+    }
+    if given("spawn") && m.get_one::<bool>("spawn").copied().unwrap_or(false) {
+        return Target::Spawn;
+    }
+    Target::Default
+}
+
+impl clap::FromArgMatches for VizArgs {
+    fn from_arg_matches(m: &clap::ArgMatches) -> Result<Self, clap::Error> {
+        // Parsed for validation only: its fields are private; the target is read below.
+        rerun::clap::RerunArgs::from_arg_matches(m)?;
+        Ok(Self {
+            target: target_from_matches(m),
+        })
+    }
+    fn update_from_arg_matches(&mut self, m: &clap::ArgMatches) -> Result<(), clap::Error> {
+        self.target = target_from_matches(m);
+        Ok(())
+    }
+}
+
+impl clap::Args for VizArgs {
+    fn augment_args(cmd: clap::Command) -> clap::Command {
+        // RerunArgs carries `#[clap(author, version, about)]`, which would replace the
+        // subcommand's own about text; keep ours.
+        let about = cmd.get_about().cloned();
+        let cmd = rerun::clap::RerunArgs::augment_args(cmd).next_help_heading("Rerun");
+        match about {
+            Some(a) => cmd.about(a),
+            None => cmd,
+        }
+    }
+    fn augment_args_for_update(cmd: clap::Command) -> clap::Command {
+        Self::augment_args(cmd)
+    }
+}
+
+/// A recording id from the inputs that determine the recording's content: `kind` names the
+/// command, `parts` are e.g. the session and model SHA-256 and the options as JSON.
+pub fn recording_id(kind: &str, parts: &[&str]) -> String {
+    let mut h = Sha256::new();
+    h.update(kind.as_bytes());
+    for p in parts {
+        // Length-prefixed so that ("ab", "c") and ("a", "bc") differ.
+        h.update((p.len() as u64).to_le_bytes());
+        h.update(p.as_bytes());
+    }
+    let hex: String = h
+        .finalize()
+        .iter()
+        .take(16)
+        .map(|b| format!("{b:02x}"))
+        .collect();
+    format!("{APP_ID}-{kind}-{hex}")
+}
+
+/// An open recording; call [`VizStream::finish`] at the end.
+pub struct VizStream {
+    pub rec: RecordingStream,
+    /// (partial, final) when saving to a file.
+    file: Option<(PathBuf, PathBuf)>,
+}
+
+impl std::fmt::Debug for VizStream {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("VizStream")
+            .field("file", &self.file)
+            .finish()
+    }
+}
+
+fn partial_path(path: &Path) -> PathBuf {
+    let mut s = path.as_os_str().to_owned();
+    s.push(".partial");
+    PathBuf::from(s)
+}
+
+/// Opens the recording where `args` say (`default_rrd` when no Rerun flag was given), with a
+/// deterministic `recording_id`, the default timelines off, and `blueprint` as the default
+/// layout.
+pub fn open_stream(
+    args: &VizArgs,
+    default_rrd: &Path,
+    recording_id: &str,
+    blueprint: Option<rerun::blueprint::Blueprint>,
+) -> Result<VizStream, VizError> {
+    let mut builder = RecordingStreamBuilder::new(APP_ID)
+        .recording_id(recording_id)
+        .send_properties(false)
+        .enabled(true);
+    if let Some(bp) = blueprint {
+        builder = builder.with_default_blueprint(bp);
+    }
+    let (rec, file) = match &args.target {
+        Target::Default | Target::Save(_) => {
+            let path = match &args.target {
+                Target::Save(p) => p.clone(),
+                _ => default_rrd.to_owned(),
+            };
+            if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+                std::fs::create_dir_all(dir).map_err(|e| VizError::Create {
+                    path: dir.display().to_string(),
+                    what: e.to_string(),
+                })?;
+            }
+            let partial = partial_path(&path);
+            let rec = builder.save(&partial).map_err(|e| VizError::Create {
+                path: partial.display().to_string(),
+                what: e.to_string(),
+            })?;
+            (rec, Some((partial, path)))
+        }
+        Target::Spawn => (builder.spawn()?, None),
+        Target::Connect(url) => (builder.connect_grpc_opts(url.clone())?, None),
+        Target::Stdout => (builder.stdout()?, None),
+    };
+    rec.set_log_time_enabled(false);
+    rec.set_log_tick_enabled(false);
+    Ok(VizStream { rec, file })
+}
+
+impl VizStream {
+    /// Flushes and closes the recording; a saved file is renamed into place and its path
+    /// returned.
+    pub fn finish(self) -> Result<Option<PathBuf>, VizError> {
+        self.rec
+            .flush_blocking()
+            .map_err(|e| VizError::Flush(e.to_string()))?;
+        // Dropping the last handle closes the file sink, which writes the footer and joins
+        // its writer thread; only then is the file complete.
+        drop(self.rec);
+        match self.file {
+            Some((partial, path)) => {
+                std::fs::rename(&partial, &path).map_err(|source| VizError::Rename {
+                    from: partial.display().to_string(),
+                    to: path.display().to_string(),
+                    source,
+                })?;
+                Ok(Some(path))
+            }
+            None => Ok(None),
+        }
+    }
+}
+
+/// The command that opens a saved recording in the viewer.
+pub fn open_command(path: &Path) -> String {
+    format!("rerun {}", path.display())
+}
+
+/// `path` with its extension replaced by `.rrd` (the default recording beside a report).
+pub fn rrd_beside(path: &Path) -> PathBuf {
+    path.with_extension("rrd")
+}
+
+pub(crate) fn log_err(e: impl std::fmt::Display) -> VizError {
+    VizError::Log(e.to_string())
+}
+
+/// Viridis (perceptually uniform), sampled at 9 points and interpolated linearly.
+const VIRIDIS: [[f32; 3]; 9] = [
+    [68.0, 1.0, 84.0],
+    [71.0, 44.0, 122.0],
+    [59.0, 81.0, 139.0],
+    [44.0, 113.0, 142.0],
+    [33.0, 144.0, 141.0],
+    [39.0, 173.0, 129.0],
+    [92.0, 200.0, 99.0],
+    [170.0, 220.0, 50.0],
+    [253.0, 231.0, 37.0],
+];
+
+/// Viridis colour of `t` in [0, 1] (clamped; NaN maps to 0).
+pub fn viridis(t: f32) -> [u8; 3] {
+    let t = if t.is_nan() { 0.0 } else { t.clamp(0.0, 1.0) };
+    let x = t * (VIRIDIS.len() - 1) as f32;
+    let i = (x.floor() as usize).min(VIRIDIS.len() - 2);
+    let f = x - i as f32;
+    let (a, b) = (VIRIDIS[i], VIRIDIS[i + 1]);
+    [0, 1, 2].map(|c| (a[c] + (b[c] - a[c]) * f).round() as u8)
+}
+
+/// The default layout of a fuse recording: the 3D world and the camera (frame with the
+/// probability overlay) side by side, the three projections and the plots below.
+pub fn fuse_blueprint() -> rerun::blueprint::Blueprint {
+    use rerun::blueprint::{
+        Blueprint, Horizontal, Spatial2DView, Spatial3DView, TimeSeriesView, Vertical,
+    };
+    let world = Spatial3DView::new("world")
+        .with_origin("/world")
+        .with_contents(["$origin/**", "- /world/robot/camera/probability"]);
+    let camera = Spatial2DView::new("camera + tile probabilities")
+        .with_origin("/world/robot/camera")
+        .with_contents(["$origin/image", "$origin/overlay"]);
+    let probs = Spatial2DView::new("tile probabilities (hover)")
+        .with_origin("/world/robot/camera")
+        .with_contents(["$origin/probability"]);
+    let px = Spatial2DView::new("mean posterior along x").with_origin("/projections/x");
+    let py = Spatial2DView::new("mean posterior along y").with_origin("/projections/y");
+    let pz = Spatial2DView::new("mean posterior along z").with_origin("/projections/z");
+    let plots = TimeSeriesView::new("plots").with_origin("/plots");
+    Blueprint::new(
+        Vertical::new([
+            Horizontal::new([
+                world.into(),
+                Vertical::new([camera.into(), probs.into()]).into(),
+            ])
+            .with_column_shares([0.6, 0.4])
+            .into(),
+            Horizontal::new([px.into(), py.into(), pz.into(), plots.into()]).into(),
+        ])
+        .with_row_shares([0.65, 0.35]),
+    )
+    .with_auto_views(false)
+}
+
+/// The default layout of a train recording: the tree graph and the training frames.
+pub fn train_blueprint() -> rerun::blueprint::Blueprint {
+    use rerun::blueprint::{Blueprint, GraphView, Horizontal, Spatial2DView, Vertical};
+    Blueprint::new(Horizontal::new([
+        GraphView::new("decision tree").with_origin("/tree").into(),
+        Vertical::new([
+            Spatial2DView::new("training frame")
+                .with_origin("/train/frame")
+                .with_contents(["$origin/image", "$origin/labels", "$origin/overlay"])
+                .into(),
+            Spatial2DView::new("tile probabilities (hover)")
+                .with_origin("/train/frame")
+                .with_contents(["$origin/probability"])
+                .into(),
+        ])
+        .into(),
+    ]))
+    .with_auto_views(false)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn viridis_ends_and_middle() {
+        assert_eq!(viridis(0.0), [68, 1, 84]);
+        assert_eq!(viridis(1.0), [253, 231, 37]);
+        assert_eq!(viridis(0.5), [33, 144, 141]);
+        // Halfway between samples 0 and 1: (68+71)/2 = 69.5 -> 70, (1+44)/2 = 22.5 -> 23.
+        assert_eq!(viridis(0.0625), [70, 23, 103]);
+        assert_eq!(viridis(-3.0), viridis(0.0));
+        assert_eq!(viridis(f32::NAN), viridis(0.0));
+    }
+
+    #[test]
+    fn recording_id_depends_on_every_part() {
+        let a = recording_id("fuse", &["ab", "c"]);
+        assert_eq!(a, recording_id("fuse", &["ab", "c"]));
+        assert_ne!(a, recording_id("fuse", &["a", "bc"]));
+        assert_ne!(a, recording_id("train", &["ab", "c"]));
+        assert!(a.starts_with("objloc-fuse-"));
+        assert_eq!(a.len(), "objloc-fuse-".len() + 32);
+    }
+
+    #[derive(Debug, clap::Parser)]
+    struct Cli {
+        #[command(flatten)]
+        viz: VizArgs,
+    }
+
+    fn target(args: &[&str]) -> Target {
+        use clap::Parser as _;
+        let mut v = vec!["objloc"];
+        v.extend_from_slice(args);
+        Cli::try_parse_from(v)
+            .map(|c| c.viz.target)
+            .unwrap_or_else(|e| panic!("{e}"))
+    }
+
+    #[test]
+    fn flags_pick_the_target() {
+        assert_eq!(target(&[]), Target::Default);
+        assert_eq!(target(&["--spawn"]), Target::Spawn);
+        assert_eq!(
+            target(&["--save", "x.rrd"]),
+            Target::Save(PathBuf::from("x.rrd"))
+        );
+        assert_eq!(target(&["--stdout"]), Target::Stdout);
+        assert_eq!(
+            target(&["--connect"]),
+            Target::Connect(rerun::DEFAULT_CONNECT_URL.to_owned())
+        );
+        assert_eq!(
+            target(&["--connect", "rerun+http://h:1/proxy"]),
+            Target::Connect("rerun+http://h:1/proxy".into())
+        );
+        assert_eq!(VizArgs::headless().target, Target::Default);
+    }
+
+    #[test]
+    fn rrd_paths() {
+        assert_eq!(
+            rrd_beside(Path::new("out/report.json")),
+            PathBuf::from("out/report.rrd")
+        );
+        assert_eq!(
+            partial_path(Path::new("a/b.rrd")),
+            PathBuf::from("a/b.rrd.partial")
+        );
+        assert_eq!(open_command(Path::new("a/b.rrd")), "rerun a/b.rrd");
+    }
+}
