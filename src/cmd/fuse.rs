@@ -20,6 +20,9 @@ use super::TopicArgs;
 pub struct Args {
     /// The session to replay.
     pub session: PathBuf,
+    /// The trained classifier (from `objloc train`).
+    #[arg(long, value_name = "MODEL.json")]
+    pub model: PathBuf,
     #[command(flatten)]
     pub fuse: FuseArgs,
     /// Write the report (JSON, schema in schemas/report.schema.json).
@@ -35,9 +38,6 @@ pub struct Args {
 /// Fusion options shared by `fuse` and `demo`.
 #[derive(Debug, Clone, clap::Args)]
 pub struct FuseArgs {
-    /// The trained classifier (from `objloc train`).
-    #[arg(long, value_name = "MODEL.json")]
-    pub model: PathBuf,
     /// Grid bounds in odom, metres. Default: the box around the camera positions, 0.25 m
     /// margin, at least 4 m in x and y, z from 0 to 0.5 m above the camera.
     #[arg(long, value_name = "XMIN,YMIN,ZMIN,XMAX,YMAX,ZMAX", value_parser = parse_bounds, allow_hyphen_values = true)]
@@ -120,9 +120,9 @@ pub struct Fused {
 }
 
 /// Loads the model and session, replays, and builds the report.
-pub fn fuse(session: &Path, args: &FuseArgs, topics: &TopicArgs) -> anyhow::Result<Fused> {
+pub fn fuse(session: &Path, model_path: &Path, args: &FuseArgs, topics: &TopicArgs) -> anyhow::Result<Fused> {
     let t0 = Instant::now();
-    let model = Model::load(&args.model).context("loading the model")?;
+    let model = Model::load(model_path).context("loading the model")?;
     let reader = SessionReader::open(session, topics.topics()?).context("reading the session")?;
     let t_load = t0.elapsed();
     let options = args.options();
@@ -137,8 +137,8 @@ pub fn fuse(session: &Path, args: &FuseArgs, topics: &TopicArgs) -> anyhow::Resu
         &options,
         &session.display().to_string(),
         file_sha256(session).with_context(|| session.display().to_string())?,
-        &args.model.display().to_string(),
-        file_sha256(&args.model).with_context(|| args.model.display().to_string())?,
+        &model_path.display().to_string(),
+        file_sha256(model_path).with_context(|| model_path.display().to_string())?,
         timing,
     );
     Ok(Fused { outcome, report })
@@ -198,7 +198,7 @@ pub fn print_summary(f: &Fused) {
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
-    let f = fuse(&args.session, &args.fuse, &args.topics)
+    let f = fuse(&args.session, &args.model, &args.fuse, &args.topics)
         .with_context(|| format!("fuse {}", args.session.display()))?;
     print_summary(&f);
     write_outputs(&f, args.report.as_deref(), args.grid.as_deref())?;
