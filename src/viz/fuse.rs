@@ -496,3 +496,109 @@ impl Observer for FuseViz {
         Ok(self.frame(data, step, grid)?)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::iso_from_xy_yaw;
+    use crate::grid::{GridSpec, logit};
+
+    #[test]
+    fn upscale_repeats_tiles_and_leaves_partial_edges_empty() {
+        let probs = TileProbs {
+            rows: 1,
+            cols: 2,
+            tile_px: 2,
+            p: vec![0.25, 0.75],
+        };
+        // 5 x 3 image: tiles cover x 0..4, y 0..2; column 4 and row 2 stay 0.
+        let up = upscale(&probs, 5, 3);
+        assert_eq!(
+            up,
+            vec![
+                0.25, 0.25, 0.75, 0.75, 0.0, 0.25, 0.25, 0.75, 0.75, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+            ]
+        );
+    }
+
+    #[test]
+    fn pyramid_of_the_centre_tile_reaches_the_depth_along_the_axis() {
+        // 4 x 4 image, fx = fy = 2, centre (2, 2): the tile (1, 1) of 2 px spans u, v in [2, 4],
+        // so its far corners at depth 3 are x, y in {0, 3} (x = (u - 2) / 2 * 3).
+        let camera = Camera {
+            width: 4,
+            height: 4,
+            fx: 2.0,
+            fy: 2.0,
+            cx: 2.0,
+            cy: 2.0,
+        };
+        let probs = TileProbs {
+            rows: 2,
+            cols: 2,
+            tile_px: 2,
+            p: vec![0.1, 0.2, 0.3, 0.9],
+        };
+        let s = pyramids(&camera, &Iso3::identity(), &probs, 0.5, 3.0);
+        assert_eq!(
+            s.len(),
+            5,
+            "one tile above 0.5: 4 edges + the far rectangle"
+        );
+        assert_eq!(s[0].0, vec![[0.0, 0.0, 0.0], [0.0, 0.0, 3.0]]);
+        assert_eq!(s[2].0[1], [3.0, 3.0, 3.0]);
+        assert_eq!(s[4].0.len(), 5);
+        assert_eq!(s[4].0[0], s[4].0[4]);
+        assert!(s.iter().all(|(_, p)| *p == 0.9));
+        // Moved 1 m along x in odom: every point moves with it.
+        let moved = pyramids(&camera, &iso_from_xy_yaw(1.0, 0.0, 0.0), &probs, 0.5, 3.0);
+        assert_eq!(moved[2].0[1], [4.0, 3.0, 3.0]);
+    }
+
+    #[test]
+    fn grid_summary_projections_entropy_and_shown_cells() {
+        let spec = GridSpec {
+            origin_m: [0.0; 3],
+            voxel_size_m: 1.0,
+            dims: [2, 1, 2],
+        };
+        let mut grid = Grid::new(spec, 0.5).unwrap();
+        // Cell (1, 0, 1) at p = 0.8 seen twice; cell (0, 0, 0) at p = 0.8 seen once.
+        let hi = logit(0.8) as f32;
+        let a = spec.index(1, 0, 1);
+        let b = spec.index(0, 0, 0);
+        grid.log_odds[a] = hi;
+        grid.views[a] = 2;
+        grid.log_odds[b] = hi;
+        grid.views[b] = 1;
+        let s = summarize_grid(&grid, 0.5, 2);
+        assert_eq!(s.cells, vec![([1, 0, 1], 0.8)]);
+        assert!((s.max_posterior - 0.8).abs() < 1e-6);
+        // H(0.8) = 0.7219 bits, H(0.5) = 1: mean over 4 cells (2 * 0.7219 + 2) / 4.
+        assert!(
+            (s.mean_entropy_bits - 0.860_964).abs() < 1e-5,
+            "{}",
+            s.mean_entropy_bits
+        );
+        // Along z (x wide, y high): x = 0 -> (0.8 + 0.5) / 2, x = 1 -> (0.5 + 0.8) / 2.
+        assert!(s.along_z.iter().all(|v| (v - 0.65).abs() < 1e-6));
+        // Along y (x wide, z up): top row is k = 1: [0.5, 0.8]; bottom k = 0: [0.8, 0.5].
+        let want = [0.5, 0.8, 0.8, 0.5];
+        assert!(
+            s.along_y
+                .iter()
+                .zip(want)
+                .all(|(v, w)| (v - w).abs() < 1e-6),
+            "{:?}",
+            s.along_y
+        );
+        // Along x (y wide = 1, z up): k = 1 -> (0.5 + 0.8) / 2, k = 0 -> (0.8 + 0.5) / 2.
+        assert!(s.along_x.iter().all(|v| (v - 0.65).abs() < 1e-6));
+    }
+
+    #[test]
+    fn overlay_alpha_grows_with_p_and_empty_pixels_are_clear() {
+        let o = overlay_rgba(&[0.0, 1.0]);
+        assert_eq!(o, vec![68, 1, 84, 0, 253, 231, 37, 220]);
+    }
+}

@@ -170,6 +170,19 @@ fn partial_path(path: &Path) -> PathBuf {
     PathBuf::from(s)
 }
 
+/// Every `log` call becomes its own chunk, sent in program order. The default batcher cuts
+/// chunks on a 200 ms timer, so two identical replays would be chunked differently and
+/// `rerun rrd compare` would call them different. Costs about 1 KiB per logged entity per
+/// frame; objloc logs a few dozen entities per frame.
+fn one_chunk_per_log() -> rerun::log::ChunkBatcherConfig {
+    rerun::log::ChunkBatcherConfig {
+        flush_tick: std::time::Duration::MAX,
+        flush_num_bytes: 0,
+        flush_num_rows: 0,
+        ..rerun::log::ChunkBatcherConfig::DEFAULT
+    }
+}
+
 /// Opens the recording where `args` say (`default_rrd` when no Rerun flag was given), with a
 /// deterministic `recording_id`, the default timelines off, and `blueprint` as the default
 /// layout.
@@ -182,6 +195,7 @@ pub fn open_stream(
     let mut builder = RecordingStreamBuilder::new(APP_ID)
         .recording_id(recording_id)
         .send_properties(false)
+        .batcher_config(one_chunk_per_log())
         .enabled(true);
     if let Some(bp) = blueprint {
         builder = builder.with_default_blueprint(bp);
