@@ -27,8 +27,9 @@ pub const TILE_PX_RANGE: std::ops::RangeInclusive<u32> = 2..=128;
 
 #[derive(Debug, Error)]
 pub enum DatasetError {
+    /// Boxed: session errors are large and this one travels up every `Result`.
     #[error(transparent)]
-    Session(#[from] SessionError),
+    Session(Box<SessionError>),
     #[error("{at}: frame does not decode: {what}")]
     Frame { at: At, what: String },
     #[error("{}: no frame has a label on {topic}{}", path.display(), object.as_ref().map(|o| format!(" for object {o:?}")).unwrap_or_default())]
@@ -41,6 +42,12 @@ pub enum DatasetError {
     TileSize { tile_px: u32 },
     #[error("train stride {stride_px} px must be 1 to the tile size {tile_px} px")]
     Stride { stride_px: u32, tile_px: u32 },
+}
+
+impl From<SessionError> for DatasetError {
+    fn from(e: SessionError) -> Self {
+        DatasetError::Session(Box::new(e))
+    }
 }
 
 /// One frame of a session, decoded, with its label rectangles if it has a label.
@@ -90,15 +97,15 @@ pub fn load_session(
         let m = m?;
         match m.msg {
             SessionMsg::Frame(f) => frames.push((m.log_time_ns, m.topic, f)),
-            SessionMsg::Label(l) => {
-                if object.is_none_or(|o| o == l.object) || l.regions.is_empty() {
-                    // Several labels for one frame (several objects, or a background label
-                    // next to an object label) add up their rectangles.
-                    labels
-                        .entry(l.header.stamp_ns)
-                        .or_default()
-                        .extend(l.regions);
-                }
+            // Several labels for one frame (several objects, or a background label next to
+            // an object label) add up their rectangles.
+            SessionMsg::Label(l)
+                if object.is_none_or(|o| o == l.object) || l.regions.is_empty() =>
+            {
+                labels
+                    .entry(l.header.stamp_ns)
+                    .or_default()
+                    .extend(l.regions);
             }
             _ => {}
         }

@@ -534,8 +534,8 @@ pub fn fit(ex: &Examples, params: &TreeParams) -> Result<(Tree, FitReport), Tree
         let mut left = Work::default();
         let mut right = Work::default();
         let parent = std::mem::take(&mut nodes[node as usize].idx);
-        for t in 0..3 {
-            for &i in &parent[t] {
+        for (t, part) in parent.iter().enumerate() {
+            for &i in part {
                 let y = ex.labels[i as usize] as u32;
                 let w = if ex.count(i as usize, c.feature) <= c.lo {
                     &mut left

@@ -1,0 +1,157 @@
+//! Benchmark of the training step and per-frame prediction: `cargo bench --bench train`.
+//! Uses recordings/chair-train.mcap when it exists, otherwise 21 synthetic 256x240 frames
+//! (3 with a labelled red box, 18 background), and prints medians.
+//!
+//! Invariants: the synthetic frames are a fixed function of pixel coordinates, so every run
+//! times the same work.
+
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+use objloc::dataset::{LoadedSession, SessionFrame, load_session};
+use objloc::features::{FeatureKind, TileFeature};
+use objloc::model::{TrainConfig, examples, fit_model};
+use objloc::msgs::RegionOfInterest;
+use objloc::session::{Rgb8, Topics};
+use objloc::tree::TreeParams;
+
+const RUNS: usize = 15;
+
+fn hash(mut x: u64) -> u64 {
+    x = (x ^ (x >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    x = (x ^ (x >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    x ^ (x >> 31)
+}
+
+fn synthetic() -> LoadedSession {
+    let (w, h) = (256u32, 240u32);
+    let palette = [
+        [60u8, 130, 60],
+        [120, 120, 120],
+        [70, 90, 170],
+        [140, 100, 60],
+    ];
+    let frames = (0..21u64)
+        .map(|k| {
+            let rect = (k < 3).then_some((40 + 50 * k as u32, 60, 48, 80));
+            let mut data = Vec::with_capacity((w * h * 3) as usize);
+            for y in 0..h {
+                for x in 0..w {
+                    let block = hash(k * 7919 + (y / 16) as u64 * 131 + (x / 16) as u64);
+                    let mut rgb = palette[block as usize % palette.len()];
+                    if let Some((rx, ry, rw, rh)) = rect
+                        && (rx..rx + rw).contains(&x)
+                        && (ry..ry + rh).contains(&y)
+                    {
+                        rgb = [200, 30, 40];
+                    }
+                    let n = hash((k << 40) ^ ((y as u64) << 20) ^ x as u64);
+                    for (c, v) in rgb.iter_mut().enumerate() {
+                        *v = (*v as i32 + ((n >> (8 * c)) % 21) as i32 - 10).clamp(0, 255) as u8;
+                    }
+                    data.extend_from_slice(&rgb);
+                }
+            }
+            SessionFrame {
+                stamp_ns: k as i64,
+                log_time_ns: k,
+                image: Rgb8 {
+                    width: w,
+                    height: h,
+                    data,
+                },
+                regions: Some(
+                    rect.map(|(x, y, rw, rh)| RegionOfInterest {
+                        x_offset: x,
+                        y_offset: y,
+                        height: rh,
+                        width: rw,
+                        do_rectify: false,
+                    })
+                    .into_iter()
+                    .collect(),
+                ),
+            }
+        })
+        .collect();
+    LoadedSession {
+        path: "synthetic".into(),
+        sha256: String::new(),
+        frames,
+    }
+}
+
+fn median(mut v: Vec<Duration>) -> f64 {
+    v.sort();
+    v[v.len() / 2].as_secs_f64() * 1e3
+}
+
+fn main() {
+    let path = Path::new("recordings/chair-train.mcap");
+    let session = if path.exists() {
+        match load_session(path, Topics::default(), None, true) {
+            Ok(s) => s,
+            Err(e) => {
+                eprintln!("error: {e}");
+                std::process::exit(1);
+            }
+        }
+    } else {
+        synthetic()
+    };
+    let sessions = vec![session];
+    let labelled = sessions[0].frames.len();
+    for features in [FeatureKind::Hsv, FeatureKind::Rgb332] {
+        let cfg = TrainConfig {
+            features,
+            tile_px: 8,
+            train_stride_px: 4,
+            seed: 0,
+            object: None,
+            tree: TreeParams::default(),
+        };
+        let (mut t_ex, mut t_fit, mut t_pred) = (Vec::new(), Vec::new(), Vec::new());
+        let mut summary = String::new();
+        for _ in 0..RUNS {
+            let t0 = Instant::now();
+            let set = match examples(&sessions, &cfg) {
+                Ok(s) => s,
+                Err(e) => {
+                    eprintln!("error: {e}");
+                    std::process::exit(1);
+                }
+            };
+            t_ex.push(t0.elapsed());
+            let t1 = Instant::now();
+            let model = match fit_model(&sessions, &set, &cfg) {
+                Ok(m) => m,
+                Err(e) => {
+                    eprintln!("error: {e}");
+                    std::process::exit(1);
+                }
+            };
+            t_fit.push(t1.elapsed());
+            let frame = &sessions[0].frames[0].image;
+            let t2 = Instant::now();
+            let map = std::hint::black_box(model.predict(std::hint::black_box(frame)));
+            t_pred.push(t2.elapsed());
+            summary = format!(
+                "{} examples, {} nodes, {} tiles per frame",
+                set.examples.len(),
+                model.tree.nodes.len(),
+                map.p.len()
+            );
+        }
+        let (ex, fit, pred) = (median(t_ex), median(t_fit), median(t_pred));
+        println!(
+            "{} ({labelled} labelled frames of {}, {summary}): median of {RUNS}: examples {ex:.1} ms, fit {fit:.1} ms, train total {:.1} ms; predict {pred:.3} ms/frame",
+            features.name(),
+            if path.exists() {
+                path.display().to_string()
+            } else {
+                "synthetic".into()
+            },
+            ex + fit
+        );
+    }
+}
