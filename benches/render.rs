@@ -5,10 +5,15 @@
 
 use std::time::Instant;
 
-use objloc::sim::{FrameJitter, Kind, Renderer, SimOptions, builtin_scene, encode_png, iso_from_pose2, plan_stops};
+use objloc::sim::{
+    FrameJitter, Kind, Renderer, SimOptions, builtin_scene, encode_png, iso_from_pose2, plan_stops,
+};
 
 fn main() {
-    let args: Vec<String> = std::env::args().skip(1).filter(|a| !a.starts_with("--")).collect();
+    let args: Vec<String> = std::env::args()
+        .skip(1)
+        .filter(|a| !a.starts_with("--"))
+        .collect();
     let per_batch: usize = args.first().and_then(|s| s.parse().ok()).unwrap_or(40);
     let batches: usize = args.get(1).and_then(|s| s.parse().ok()).unwrap_or(7);
     let scene = builtin_scene("chair").expect("built-in scene");

@@ -40,11 +40,22 @@ pub enum ImportError {
         source: std::io::Error,
     },
     #[error("{path}:{line}: {what}", path = path.display())]
-    Line { path: PathBuf, line: usize, what: String },
+    Line {
+        path: PathBuf,
+        line: usize,
+        what: String,
+    },
     #[error("{path}: {what}", path = path.display())]
     Invalid { path: PathBuf, what: String },
+    /// Boxed: a session error carries an MCAP error and the place it happened.
     #[error(transparent)]
-    Session(#[from] SessionError),
+    Session(Box<SessionError>),
+}
+
+impl From<SessionError> for ImportError {
+    fn from(e: SessionError) -> Self {
+        Self::Session(Box::new(e))
+    }
 }
 
 /// One trajectory line: camera pose in the world frame at a stamp.
@@ -112,14 +123,14 @@ pub fn parse_trajectory(path: &Path, text: &str) -> Result<Vec<TrajectoryPose>, 
         }
         let world_from_camera = iso_from_parts([v[0], v[1], v[2]], [v[3], v[4], v[5], v[6]])
             .ok_or_else(|| err("quaternion has zero length".into()))?;
-        if let Some(prev) = out.last() {
-            if stamp_ns <= prev.stamp_ns {
-                return Err(err(format!(
-                    "timestamp {} is not after the previous line's ({})",
-                    fields[0],
-                    crate::session::fmt_ns(prev.stamp_ns.max(0) as u64)
-                )));
-            }
+        if let Some(prev) = out.last()
+            && stamp_ns <= prev.stamp_ns
+        {
+            return Err(err(format!(
+                "timestamp {} is not after the previous line's ({})",
+                fields[0],
+                crate::session::fmt_ns(prev.stamp_ns.max(0) as u64)
+            )));
         }
         out.push(TrajectoryPose {
             stamp_ns,
@@ -145,7 +156,10 @@ pub fn parse_labels(path: &Path, text: &str) -> Result<Labels, ImportError> {
     for (i, raw) in text.lines().enumerate() {
         let line = i + 1;
         let content = raw.trim();
-        if content.is_empty() || content.starts_with('#') || (line == 1 && content.starts_with("image")) {
+        if content.is_empty()
+            || content.starts_with('#')
+            || (line == 1 && content.starts_with("image"))
+        {
             continue;
         }
         let err = |what: String| ImportError::Line {
@@ -168,9 +182,12 @@ pub fn parse_labels(path: &Path, text: &str) -> Result<Labels, ImportError> {
         } else {
             let mut v = [0u32; 4];
             for (k, f) in fields[1..].iter().enumerate() {
-                v[k] = f
-                    .parse()
-                    .map_err(|_| err(format!("column {} ({f:?}) is not a whole number of pixels", k + 2)))?;
+                v[k] = f.parse().map_err(|_| {
+                    err(format!(
+                        "column {} ({f:?}) is not a whole number of pixels",
+                        k + 2
+                    ))
+                })?;
             }
             if v[2] == 0 || v[3] == 0 {
                 return Err(err(format!("box {} x {} is empty", v[2], v[3])));
@@ -183,7 +200,9 @@ pub fn parse_labels(path: &Path, text: &str) -> Result<Labels, ImportError> {
                 do_rectify: false,
             })
         };
-        out.entry(fields[0].to_owned()).or_default().push((line, roi));
+        out.entry(fields[0].to_owned())
+            .or_default()
+            .push((line, roi));
     }
     Ok(out)
 }
@@ -240,7 +259,9 @@ fn pose_at(traj: &[TrajectoryPose], stamp_ns: i64) -> Result<Iso3, String> {
         (Some(f), Some(l)) => (f, l),
         _ => return Err("empty trajectory".into()),
     };
-    if stamp_ns < first.stamp_ns - MAX_EXTRAPOLATION_NS || stamp_ns > last.stamp_ns + MAX_EXTRAPOLATION_NS {
+    if stamp_ns < first.stamp_ns - MAX_EXTRAPOLATION_NS
+        || stamp_ns > last.stamp_ns + MAX_EXTRAPOLATION_NS
+    {
         return Err(format!(
             "stamp {} is outside the trajectory ({} to {}) by more than 50 ms",
             crate::session::fmt_ns(stamp_ns.max(0) as u64),
@@ -267,10 +288,18 @@ pub fn import(
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<ImportStats, ImportError> {
     let [fx, fy, cx, cy] = opts.camera;
-    if !(fx > 0.0 && fy > 0.0 && fx.is_finite() && fy.is_finite() && cx.is_finite() && cy.is_finite()) {
+    if !(fx > 0.0
+        && fy > 0.0
+        && fx.is_finite()
+        && fy.is_finite()
+        && cx.is_finite()
+        && cy.is_finite())
+    {
         return Err(ImportError::Invalid {
             path: opts.trajectory.clone(),
-            what: format!("--camera {fx},{fy},{cx},{cy}: focal lengths must be positive and all finite"),
+            what: format!(
+                "--camera {fx},{fy},{cx},{cy}: focal lengths must be positive and all finite"
+            ),
         });
     }
     let read = |p: &Path| {
@@ -285,7 +314,11 @@ pub fn import(
         None => None,
     };
     let images = list_images(&opts.images)?;
-    let name_of = |p: &Path| p.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    let name_of = |p: &Path| {
+        p.file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default()
+    };
     if let Some((lp, l)) = &labels {
         let names: Vec<String> = images.iter().map(|p| name_of(p)).collect();
         if let Some((name, rows)) = l.iter().find(|(n, _)| !names.contains(n)) {
@@ -298,7 +331,11 @@ pub fn import(
     }
     let stems: Option<Vec<i64>> = images
         .iter()
-        .map(|p| p.file_stem().and_then(|s| s.to_str()).and_then(parse_seconds_ns))
+        .map(|p| {
+            p.file_stem()
+                .and_then(|s| s.to_str())
+                .and_then(parse_seconds_ns)
+        })
         .collect();
     let timestamps_from_names = stems.is_some();
     // (stamp, pose) per image.
@@ -307,10 +344,12 @@ pub fn import(
             .iter()
             .zip(stamps)
             .map(|(p, s)| {
-                pose_at(&traj, *s).map(|pose| (*s, pose)).map_err(|what| ImportError::Invalid {
-                    path: p.clone(),
-                    what,
-                })
+                pose_at(&traj, *s)
+                    .map(|pose| (*s, pose))
+                    .map_err(|what| ImportError::Invalid {
+                        path: p.clone(),
+                        what,
+                    })
             })
             .collect::<Result<_, _>>()?,
         None => {
@@ -325,7 +364,9 @@ pub fn import(
                     ),
                 });
             }
-            traj.iter().map(|t| (t.stamp_ns, t.world_from_camera)).collect()
+            traj.iter()
+                .map(|t| (t.stamp_ns, t.world_from_camera))
+                .collect()
         }
     };
     if let Some(w) = posed.windows(2).position(|w| w[1].0 <= w[0].0) {
@@ -341,6 +382,33 @@ pub fn import(
         });
     }
 
+    let result = write_session(opts, out, &images, &posed, labels.as_ref(), progress);
+    if result.is_err() {
+        // An error leaves nothing behind: no final file, no partial one.
+        let _ = std::fs::remove_file(crate::output::partial_path(out));
+    }
+    result.map(|(path, labelled)| ImportStats {
+        path,
+        frames: images.len(),
+        labelled,
+        timestamps_from_names,
+    })
+}
+
+fn write_session(
+    opts: &ImportOptions,
+    out: &Path,
+    images: &[PathBuf],
+    posed: &[(i64, Iso3)],
+    labels: Option<&(PathBuf, Labels)>,
+    progress: &mut dyn FnMut(usize, usize),
+) -> Result<(PathBuf, usize), ImportError> {
+    let [fx, fy, cx, cy] = opts.camera;
+    let name_of = |p: &Path| {
+        p.file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default()
+    };
     let topics = Topics::default();
     let mut writer = SessionWriter::create(out)?;
     let first_ns = posed[0].0;
@@ -354,7 +422,7 @@ pub fn import(
     };
     writer.write(&topics.tf_static, first_ns, &tf)?;
     let mut labelled = 0;
-    for (k, (path, (stamp_ns, pose))) in images.iter().zip(&posed).enumerate() {
+    for (k, (path, (stamp_ns, pose))) in images.iter().zip(posed).enumerate() {
         let bytes = std::fs::read(path).map_err(|source| ImportError::Io {
             path: path.clone(),
             source,
@@ -366,10 +434,11 @@ pub fn import(
             })?
             .into_rgb8();
         let (w, h) = img.dimensions();
-        let png = crate::sim::encode_png(w, h, img.as_raw()).map_err(|what| ImportError::Invalid {
-            path: path.clone(),
-            what,
-        })?;
+        let png =
+            crate::sim::encode_png(w, h, img.as_raw()).map_err(|what| ImportError::Invalid {
+                path: path.clone(),
+                what,
+            })?;
         let odom = Odometry {
             header: Header::new(*stamp_ns, "odom"),
             child_frame_id: "base_link".into(),
@@ -394,44 +463,39 @@ pub fn import(
             *stamp_ns,
             &CameraInfo::pinhole(header.clone(), w, h, fx, fy, cx, cy),
         )?;
-        if let Some((lp, l)) = &labels {
-            if let Some(rows) = l.get(&name_of(path)) {
-                let mut regions = Vec::new();
-                for (line, roi) in rows {
-                    if let Some(r) = roi {
-                        if u64::from(r.x_offset) + u64::from(r.width) > u64::from(w)
-                            || u64::from(r.y_offset) + u64::from(r.height) > u64::from(h)
-                        {
-                            return Err(ImportError::Line {
-                                path: lp.clone(),
-                                line: *line,
-                                what: format!(
-                                    "box x {} y {} {} x {} leaves the {w} x {h} image",
-                                    r.x_offset, r.y_offset, r.width, r.height
-                                ),
-                            });
-                        }
-                        regions.push(*r);
+        if let Some((lp, l)) = labels
+            && let Some(rows) = l.get(&name_of(path))
+        {
+            let mut regions = Vec::new();
+            for (line, roi) in rows {
+                if let Some(r) = roi {
+                    if u64::from(r.x_offset) + u64::from(r.width) > u64::from(w)
+                        || u64::from(r.y_offset) + u64::from(r.height) > u64::from(h)
+                    {
+                        return Err(ImportError::Line {
+                            path: lp.clone(),
+                            line: *line,
+                            what: format!(
+                                "box x {} y {} {} x {} leaves the {w} x {h} image",
+                                r.x_offset, r.y_offset, r.width, r.height
+                            ),
+                        });
                     }
+                    regions.push(*r);
                 }
-                let label = ObjectLabel {
-                    header: header.clone(),
-                    object: opts.object.clone(),
-                    regions,
-                };
-                writer.write(&topics.labels, *stamp_ns, &label)?;
-                labelled += 1;
             }
+            let label = ObjectLabel {
+                header: header.clone(),
+                object: opts.object.clone(),
+                regions,
+            };
+            writer.write(&topics.labels, *stamp_ns, &label)?;
+            labelled += 1;
         }
         progress(k + 1, images.len());
     }
     let path = writer.finish()?;
-    Ok(ImportStats {
-        path,
-        frames: images.len(),
-        labelled,
-        timestamps_from_names,
-    })
+    Ok((path, labelled))
 }
 
 #[cfg(test)]
@@ -440,7 +504,10 @@ mod tests {
 
     #[test]
     fn seconds_parse_exactly() {
-        assert_eq!(parse_seconds_ns("1305031102.175304"), Some(1_305_031_102_175_304_000));
+        assert_eq!(
+            parse_seconds_ns("1305031102.175304"),
+            Some(1_305_031_102_175_304_000)
+        );
         assert_eq!(parse_seconds_ns("12"), Some(12_000_000_000));
         assert_eq!(parse_seconds_ns("-0.5"), Some(-500_000_000));
         assert_eq!(parse_seconds_ns("frame_001"), None);
@@ -456,9 +523,16 @@ mod tests {
         assert_eq!((t[1].stamp_ns, t[1].line), (2_500_000_000, 4));
         assert!((t[1].world_from_camera.translation.y - 2.0).abs() < 1e-12);
         let e = parse_trajectory(p, "1.0 0 0 0 0 0 0 1\n2.0 0 0 x 0 0 0 1\n").unwrap_err();
-        assert_eq!(e.to_string(), "traj.txt:2: field 4 (\"x\") is not a finite number");
+        assert_eq!(
+            e.to_string(),
+            "traj.txt:2: field 4 (\"x\") is not a finite number"
+        );
         let e = parse_trajectory(p, "1.0 0 0 0 0 0 0 1\n1.0 0 0 0 0 0 0 1\n").unwrap_err();
-        assert!(e.to_string().starts_with("traj.txt:2: timestamp 1.0 is not after"), "{e}");
+        assert!(
+            e.to_string()
+                .starts_with("traj.txt:2: timestamp 1.0 is not after"),
+            "{e}"
+        );
         let e = parse_trajectory(p, "1.0 0 0 0 0 0 0 0\n").unwrap_err();
         assert_eq!(e.to_string(), "traj.txt:1: quaternion has zero length");
     }
@@ -466,9 +540,16 @@ mod tests {
     #[test]
     fn labels_parse_boxes_and_background_rows() {
         let p = Path::new("l.csv");
-        let l = parse_labels(p, "image,x,y,width,height\na.png,1,2,30,40\nb.png,,,,\na.png,5,5,2,2\n").unwrap();
+        let l = parse_labels(
+            p,
+            "image,x,y,width,height\na.png,1,2,30,40\nb.png,,,,\na.png,5,5,2,2\n",
+        )
+        .unwrap();
         assert_eq!(l["a.png"].len(), 2);
-        assert_eq!(l["a.png"][0].1.map(|r| (r.x_offset, r.height)), Some((1, 40)));
+        assert_eq!(
+            l["a.png"][0].1.map(|r| (r.x_offset, r.height)),
+            Some((1, 40))
+        );
         assert_eq!(l["b.png"], vec![(3, None)]);
         let e = parse_labels(p, "a.png,1,2,0,4\n").unwrap_err();
         assert_eq!(e.to_string(), "l.csv:1: box 0 x 4 is empty");

@@ -26,7 +26,11 @@ enum Source {
 #[derive(Debug, clap::Args)]
 struct SimArgs {
     /// Built-in scene: chair, bottle, two-chairs.
-    #[arg(long, conflicts_with = "scene_file", required_unless_present = "scene_file")]
+    #[arg(
+        long,
+        conflicts_with = "scene_file",
+        required_unless_present = "scene_file"
+    )]
     scene: Option<String>,
     /// Scene JSON file (schema in schemas/scene.md).
     #[arg(long, value_name = "FILE")]
@@ -88,7 +92,9 @@ fn progress_bar() -> ProgressBar {
         return ProgressBar::hidden();
     }
     let bar = ProgressBar::new(0);
-    if let Ok(style) = ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} frames ({per_sec}, eta {eta})") {
+    if let Ok(style) =
+        ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} frames ({per_sec}, eta {eta})")
+    {
         bar.set_style(style.progress_chars("=> "));
     }
     bar

@@ -55,8 +55,9 @@ pub enum SimError {
         #[source]
         source: std::io::Error,
     },
+    /// Boxed: a session error carries an MCAP error and the place it happened.
     #[error(transparent)]
-    Session(#[from] SessionError),
+    Session(Box<SessionError>),
     #[error("frame {index} (stamp {stamp_ns} ns): cannot encode PNG: {what}")]
     Encode {
         index: usize,
@@ -65,6 +66,12 @@ pub enum SimError {
     },
     #[error("{0}")]
     Options(String),
+}
+
+impl From<SessionError> for SimError {
+    fn from(e: SessionError) -> Self {
+        Self::Session(Box::new(e))
+    }
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -111,7 +118,8 @@ pub struct RecordStats {
 
 /// A built-in scene by name.
 pub fn builtin_scene(name: &str) -> Result<Scene, SimError> {
-    let text = scene::builtin_json(name).ok_or_else(|| SimError::UnknownScene { name: name.into() })?;
+    let text =
+        scene::builtin_json(name).ok_or_else(|| SimError::UnknownScene { name: name.into() })?;
     Scene::from_json(text).map_err(|what| SimError::Scene {
         name: name.into(),
         what,
@@ -141,12 +149,18 @@ pub fn plan_stops(scene: &Scene, opts: &SimOptions) -> Result<Vec<Stop>, SimErro
     match opts.kind {
         Kind::Tour => {
             if opts.stops < 2 {
-                return Err(SimError::Options(format!("a tour needs at least 2 stops, got {}", opts.stops)));
+                return Err(SimError::Options(format!(
+                    "a tour needs at least 2 stops, got {}",
+                    opts.stops
+                )));
             }
             let n = opts.stops as f64;
             Ok((0..opts.stops)
                 .map(|i| Stop {
-                    pose: facing(p.tour_start_deg.to_radians() + 2.0 * PI * i as f64 / n, p.tour_radius_m),
+                    pose: facing(
+                        p.tour_start_deg.to_radians() + 2.0 * PI * i as f64 / n,
+                        p.tour_radius_m,
+                    ),
                     background: false,
                 })
                 .collect())
@@ -180,7 +194,10 @@ pub fn plan_stops(scene: &Scene, opts: &SimOptions) -> Result<Vec<Stop>, SimErro
 
 /// `base_link -> camera_optical_frame` of the scene's camera.
 pub fn base_from_optical(scene: &Scene) -> Iso3 {
-    camera_mount(scene.camera.mount_m, scene.camera.pitch_down_deg.to_radians())
+    camera_mount(
+        scene.camera.mount_m,
+        scene.camera.pitch_down_deg.to_radians(),
+    )
 }
 
 /// The base_link pose of a planar pose.
@@ -215,7 +232,10 @@ pub fn ground_truth_boxes(scene: &Scene) -> Vec<(String, Iso3, [f64; 3])> {
                 })
                 .unwrap_or(0.0);
             let (lo, hi) = prims.iter().fold(
-                (Vector3::repeat(f64::INFINITY), Vector3::repeat(f64::NEG_INFINITY)),
+                (
+                    Vector3::repeat(f64::INFINITY),
+                    Vector3::repeat(f64::NEG_INFINITY),
+                ),
                 |(lo, hi), p| {
                     let (a, b) = render::shape_extent_in_yaw(&p.shape, yaw);
                     (lo.inf(&a), hi.sup(&b))
@@ -236,7 +256,11 @@ pub fn ground_truth_boxes(scene: &Scene) -> Vec<(String, Iso3, [f64; 3])> {
 
 /// Bounding rectangles of the visible pixels of each instance of `object` with at least
 /// [`MIN_LABEL_PIXELS`] pixels, in instance order.
-pub fn label_regions(rendered: &Rendered, renderer: &Renderer, object: &str) -> Vec<RegionOfInterest> {
+pub fn label_regions(
+    rendered: &Rendered,
+    renderer: &Renderer,
+    object: &str,
+) -> Vec<RegionOfInterest> {
     let w = rendered.width as usize;
     renderer
         .instances()
@@ -326,7 +350,11 @@ pub fn record(
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<RecordStats, SimError> {
     let n = opts.speed_noise;
-    if !(n.trans_rel_sigma >= 0.0 && n.rot_rel_sigma >= 0.0 && n.trans_rel_sigma < 0.5 && n.rot_rel_sigma < 0.5) {
+    if !(n.trans_rel_sigma >= 0.0
+        && n.rot_rel_sigma >= 0.0
+        && n.trans_rel_sigma < 0.5
+        && n.rot_rel_sigma < 0.5)
+    {
         return Err(SimError::Options(format!(
             "speed noise {},{} must be fractions in [0, 0.5)",
             n.trans_rel_sigma, n.rot_rel_sigma
@@ -344,8 +372,6 @@ pub fn record(
     );
     let full = Renderer::new(scene, None);
     let background = Renderer::new(scene, Some(&scene.target));
-    let camera = *full.camera();
-    let mount = base_from_optical(scene);
     if let Some(dir) = &opts.dump_frames {
         std::fs::create_dir_all(dir).map_err(|source| SimError::Io {
             path: dir.clone(),
@@ -353,6 +379,36 @@ pub fn record(
         })?;
     }
 
+    let result = write_session(
+        scene,
+        opts,
+        out,
+        &events,
+        &full,
+        &background,
+        progress,
+        stops.len(),
+    );
+    if result.is_err() {
+        // An error (unlike a kill) leaves nothing behind: no final file, no partial one.
+        let _ = std::fs::remove_file(crate::output::partial_path(out));
+    }
+    result
+}
+
+#[allow(clippy::too_many_arguments)]
+fn write_session(
+    scene: &Scene,
+    opts: &SimOptions,
+    out: &Path,
+    events: &[Event],
+    full: &Renderer,
+    background: &Renderer,
+    progress: &mut dyn FnMut(usize, usize),
+    total_frames: usize,
+) -> Result<RecordStats, SimError> {
+    let camera = *full.camera();
+    let mount = base_from_optical(scene);
     let topics = Topics::default();
     let mut writer = SessionWriter::create(out)?;
     let mut messages = 0usize;
@@ -360,7 +416,11 @@ pub fn record(
         transforms: vec![TransformStamped {
             header: Header::new(START_NS, BASE_FRAME),
             child_frame_id: CAMERA_FRAME.into(),
-            translation: [mount.translation.x, mount.translation.y, mount.translation.z],
+            translation: [
+                mount.translation.x,
+                mount.translation.y,
+                mount.translation.z,
+            ],
             rotation_xyzw: pose_from_iso(&mount).orientation_xyzw,
         }],
     };
@@ -376,10 +436,9 @@ pub fn record(
     messages += 2;
 
     let mut camera_rng = Rng::new(opts.seed ^ CAMERA_STREAM);
-    let total_frames = stops.len();
     let mut frames = 0usize;
     let object_names = scene.object_names();
-    for ev in &events {
+    for ev in events {
         match ev {
             Event::CmdVel {
                 stamp_ns,
@@ -403,7 +462,15 @@ pub fn record(
                 linear_m_s,
                 angular_rad_s,
             } => {
-                messages += write_poses(&mut writer, &topics, *stamp_ns, nominal, truth, *linear_m_s, *angular_rad_s)?;
+                messages += write_poses(
+                    &mut writer,
+                    &topics,
+                    *stamp_ns,
+                    nominal,
+                    truth,
+                    *linear_m_s,
+                    *angular_rad_s,
+                )?;
             }
             Event::Frame {
                 stamp_ns,
@@ -415,14 +482,17 @@ pub fn record(
                 let stamp_ns = *stamp_ns;
                 messages += write_poses(&mut writer, &topics, stamp_ns, nominal, truth, 0.0, 0.0)?;
                 let jitter = frame_jitter(&mut camera_rng);
-                let renderer = if *is_background { &background } else { &full };
+                let renderer = if *is_background { background } else { full };
                 let odom_from_optical = iso_from_pose2(truth) * mount;
                 let rendered = renderer.render(&odom_from_optical, &jitter);
-                let png = encode_png(rendered.width, rendered.height, &rendered.rgb).map_err(|what| SimError::Encode {
-                    index: *index,
-                    stamp_ns,
-                    what,
-                })?;
+                let png =
+                    encode_png(rendered.width, rendered.height, &rendered.rgb).map_err(|what| {
+                        SimError::Encode {
+                            index: *index,
+                            stamp_ns,
+                            what,
+                        }
+                    })?;
                 let header = Header::new(stamp_ns, CAMERA_FRAME);
                 let labels: Vec<ObjectLabel> = match opts.kind {
                     Kind::Train => vec![ObjectLabel {
@@ -517,13 +587,17 @@ fn dump_frame(
     let io = |path: PathBuf| move |source| SimError::Io { path, source };
     let path = dir.join(format!("frame_{index:03}.png"));
     crate::output::write_atomic(&path, png).map_err(io(path.clone()))?;
-    let regions: Vec<RegionOfInterest> = labels.iter().flat_map(|l| l.regions.iter().copied()).collect();
+    let regions: Vec<RegionOfInterest> = labels
+        .iter()
+        .flat_map(|l| l.regions.iter().copied())
+        .collect();
     let boxed = draw_regions(rendered.width, rendered.height, &rendered.rgb, &regions);
-    let boxed_png = encode_png(rendered.width, rendered.height, &boxed).map_err(|what| SimError::Encode {
-        index,
-        stamp_ns: 0,
-        what,
-    })?;
+    let boxed_png =
+        encode_png(rendered.width, rendered.height, &boxed).map_err(|what| SimError::Encode {
+            index,
+            stamp_ns: 0,
+            what,
+        })?;
     let path = dir.join(format!("frame_{index:03}_labels.png"));
     crate::output::write_atomic(&path, &boxed_png).map_err(io(path.clone()))
 }
@@ -542,7 +616,10 @@ mod tests {
         // Seat 0.45 square, back 0.05 thick at local x -0.2: x from -0.225 to 0.225; legs to
         // the floor; back top at 0.71 + 0.235 = 0.945.
         // The scene file rounds the rotated leg positions to 0.1 mm.
-        assert!((size[0] - 0.45).abs() < 1e-4 && (size[1] - 0.45).abs() < 1e-4, "{size:?}");
+        assert!(
+            (size[0] - 0.45).abs() < 1e-4 && (size[1] - 0.45).abs() < 1e-4,
+            "{size:?}"
+        );
         assert!((size[2] - 0.945).abs() < 1e-9, "{size:?}");
         assert!((pose.translation.z - 0.4725).abs() < 1e-9);
         assert!((crate::geometry::yaw_of(pose) - 20f64.to_radians()).abs() < 1e-9);
@@ -554,7 +631,10 @@ mod tests {
         let stops = plan_stops(&s, &SimOptions::new(Kind::Tour, 1)).unwrap();
         assert_eq!(stops.len(), 8);
         for st in &stops {
-            let (dx, dy) = (s.path.target_m[0] - st.pose.x_m, s.path.target_m[1] - st.pose.y_m);
+            let (dx, dy) = (
+                s.path.target_m[0] - st.pose.x_m,
+                s.path.target_m[1] - st.pose.y_m,
+            );
             assert!((dx.hypot(dy) - s.path.tour_radius_m).abs() < 1e-9);
             assert!(robot::wrap_angle(dy.atan2(dx) - st.pose.yaw_rad).abs() < 1e-9);
         }
@@ -585,7 +665,15 @@ mod tests {
         }
         let regions = label_regions(&rendered, &r, "chair");
         assert_eq!(regions.len(), 1);
-        assert_eq!((regions[0].x_offset, regions[0].y_offset, regions[0].width, regions[0].height), (3, 2, 4, 4));
+        assert_eq!(
+            (
+                regions[0].x_offset,
+                regions[0].y_offset,
+                regions[0].width,
+                regions[0].height
+            ),
+            (3, 2, 4, 4)
+        );
         rendered.ids[23] = 0;
         assert!(label_regions(&rendered, &r, "chair").is_empty());
     }

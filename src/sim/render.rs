@@ -211,7 +211,10 @@ impl Renderer {
             .into_iter()
             .map(|items| {
                 let (lo, hi) = items.iter().fold(
-                    (Vector3::repeat(f64::INFINITY), Vector3::repeat(f64::NEG_INFINITY)),
+                    (
+                        Vector3::repeat(f64::INFINITY),
+                        Vector3::repeat(f64::NEG_INFINITY),
+                    ),
                     |(lo, hi), it| {
                         let (a, b) = prim_aabb(&it.prim);
                         (lo.inf(&a), hi.sup(&b))
@@ -299,7 +302,11 @@ impl Renderer {
         };
         let p = origin + dir * hit.t;
         // Surfaces seen from behind (inside a primitive) shade like their front.
-        let n = if hit.normal.dot(dir) > 0.0 { -hit.normal } else { hit.normal };
+        let n = if hit.normal.dot(dir) > 0.0 {
+            -hit.normal
+        } else {
+            hit.normal
+        };
         let cos = n.dot(&self.light_dir);
         let mut direct = 0.0;
         if cos > 0.0 {
@@ -339,7 +346,9 @@ impl Renderer {
     fn occluded(&self, o: &Vector3<f64>, d: &Vector3<f64>) -> bool {
         self.groups.iter().any(|g| {
             sphere_may_hit(o, d, &g.center, g.radius, f64::INFINITY)
-                && g.items.iter().any(|it| intersect(&it.prim, o, d, f64::INFINITY).is_some())
+                && g.items
+                    .iter()
+                    .any(|it| intersect(&it.prim, o, d, f64::INFINITY).is_some())
         })
     }
 
@@ -403,7 +412,10 @@ fn prim_aabb(p: &Prim) -> (Vector3<f64>, Vector3<f64>) {
             base - Vector3::new(radius, radius, 0.0),
             base + Vector3::new(radius, radius, height),
         ),
-        Prim::Sphere { center, radius } => (center - Vector3::repeat(radius), center + Vector3::repeat(radius)),
+        Prim::Sphere { center, radius } => (
+            center - Vector3::repeat(radius),
+            center + Vector3::repeat(radius),
+        ),
     }
 }
 
@@ -426,7 +438,8 @@ pub fn shape_extent_in_yaw(shape: &Shape, yaw: f64) -> (Vector3<f64>, Vector3<f6
                 for sy in [-1.0, 1.0] {
                     for sz in [-1.0, 1.0] {
                         let (lx, ly) = (sx * h.x, sy * h.y);
-                        let world = v3(center_m) + Vector3::new(bc * lx - bs * ly, bs * lx + bc * ly, sz * h.z);
+                        let world = v3(center_m)
+                            + Vector3::new(bc * lx - bs * ly, bs * lx + bc * ly, sz * h.z);
                         let f = to_frame(world);
                         lo = lo.inf(&f);
                         hi = hi.sup(&f);
@@ -448,13 +461,22 @@ pub fn shape_extent_in_yaw(shape: &Shape, yaw: f64) -> (Vector3<f64>, Vector3<f6
         }
         Shape::Sphere { center_m, radius_m } => {
             let cf = to_frame(v3(center_m));
-            (cf - Vector3::repeat(radius_m), cf + Vector3::repeat(radius_m))
+            (
+                cf - Vector3::repeat(radius_m),
+                cf + Vector3::repeat(radius_m),
+            )
         }
     }
 }
 
 #[inline]
-fn sphere_may_hit(o: &Vector3<f64>, d: &Vector3<f64>, c: &Vector3<f64>, r: f64, t_max: f64) -> bool {
+fn sphere_may_hit(
+    o: &Vector3<f64>,
+    d: &Vector3<f64>,
+    c: &Vector3<f64>,
+    r: f64,
+    t_max: f64,
+) -> bool {
     let oc = c - o;
     let tc = oc.dot(d);
     let dist2 = oc.norm_squared() - tc * tc;
@@ -467,7 +489,12 @@ fn sphere_may_hit(o: &Vector3<f64>, d: &Vector3<f64>, c: &Vector3<f64>, r: f64, 
 
 /// Nearest intersection with t in (eps, t_max): (t, outward normal, local point).
 #[inline]
-fn intersect(p: &Prim, o: &Vector3<f64>, d: &Vector3<f64>, t_max: f64) -> Option<(f64, Vector3<f64>, Vector3<f64>)> {
+fn intersect(
+    p: &Prim,
+    o: &Vector3<f64>,
+    d: &Vector3<f64>,
+    t_max: f64,
+) -> Option<(f64, Vector3<f64>, Vector3<f64>)> {
     match *p {
         Prim::Box {
             center,
@@ -477,8 +504,16 @@ fn intersect(p: &Prim, o: &Vector3<f64>, d: &Vector3<f64>, t_max: f64) -> Option
         } => {
             let rel = o - center;
             // local-from-world: rotate by -yaw
-            let lo = Vector3::new(cos_yaw * rel.x + sin_yaw * rel.y, -sin_yaw * rel.x + cos_yaw * rel.y, rel.z);
-            let ld = Vector3::new(cos_yaw * d.x + sin_yaw * d.y, -sin_yaw * d.x + cos_yaw * d.y, d.z);
+            let lo = Vector3::new(
+                cos_yaw * rel.x + sin_yaw * rel.y,
+                -sin_yaw * rel.x + cos_yaw * rel.y,
+                rel.z,
+            );
+            let ld = Vector3::new(
+                cos_yaw * d.x + sin_yaw * d.y,
+                -sin_yaw * d.x + cos_yaw * d.y,
+                d.z,
+            );
             let mut t_near = f64::NEG_INFINITY;
             let mut t_far = f64::INFINITY;
             let mut axis_near = 0;
@@ -493,7 +528,11 @@ fn intersect(p: &Prim, o: &Vector3<f64>, d: &Vector3<f64>, t_max: f64) -> Option
                 let inv = 1.0 / ld[a];
                 let t1 = (-half[a] - lo[a]) * inv;
                 let t2 = (half[a] - lo[a]) * inv;
-                let (ta, tb, s) = if t1 < t2 { (t1, t2, -1.0) } else { (t2, t1, 1.0) };
+                let (ta, tb, s) = if t1 < t2 {
+                    (t1, t2, -1.0)
+                } else {
+                    (t2, t1, 1.0)
+                };
                 if ta > t_near {
                     t_near = ta;
                     axis_near = a;
@@ -506,7 +545,11 @@ fn intersect(p: &Prim, o: &Vector3<f64>, d: &Vector3<f64>, t_max: f64) -> Option
             }
             let mut ln = Vector3::zeros();
             ln[axis_near] = sign_near;
-            let normal = Vector3::new(cos_yaw * ln.x - sin_yaw * ln.y, sin_yaw * ln.x + cos_yaw * ln.y, ln.z);
+            let normal = Vector3::new(
+                cos_yaw * ln.x - sin_yaw * ln.y,
+                sin_yaw * ln.x + cos_yaw * ln.y,
+                ln.z,
+            );
             Some((t_near, normal, lo + ld * t_near))
         }
         Prim::Sphere { center, radius } => {
@@ -518,7 +561,11 @@ fn intersect(p: &Prim, o: &Vector3<f64>, d: &Vector3<f64>, t_max: f64) -> Option
                 return None;
             }
             let sq = disc.sqrt();
-            let t = if -b - sq > SURFACE_EPS_M { -b - sq } else { -b + sq };
+            let t = if -b - sq > SURFACE_EPS_M {
+                -b - sq
+            } else {
+                -b + sq
+            };
             if t <= SURFACE_EPS_M || t >= t_max {
                 return None;
             }
@@ -574,7 +621,8 @@ fn texture_factor(t: &Texture, p: &Vector3<f64>) -> f64 {
         Texture::Flat => 1.0,
         Texture::Noise { scale_m, amount } => {
             let q = p / scale_m;
-            let n = 0.65 * value_noise(&q) + 0.35 * value_noise(&(q * 2.03 + Vector3::repeat(17.1)));
+            let n =
+                0.65 * value_noise(&q) + 0.35 * value_noise(&(q * 2.03 + Vector3::repeat(17.1)));
             1.0 + amount * (2.0 * n - 1.0)
         }
         Texture::Stripes {
@@ -611,7 +659,11 @@ fn hash_u64(mut x: u64) -> u64 {
 
 #[inline]
 fn lattice(ix: i64, iy: i64, iz: i64) -> f64 {
-    let h = hash_u64((ix as u64).wrapping_mul(0x8DA6_B343) ^ (iy as u64).wrapping_mul(0xD816_3841) ^ (iz as u64).wrapping_mul(0xCB1A_B31F));
+    let h = hash_u64(
+        (ix as u64).wrapping_mul(0x8DA6_B343)
+            ^ (iy as u64).wrapping_mul(0xD816_3841)
+            ^ (iz as u64).wrapping_mul(0xCB1A_B31F),
+    );
     (h >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
 }
 
@@ -638,13 +690,19 @@ fn value_noise(p: &Vector3<f64>) -> f64 {
 #[inline]
 fn gaussian_hash(seed: u64, index: u64) -> f64 {
     let h = hash_u64(seed ^ hash_u64(index));
-    let sum: f64 = (0..4).map(|k| ((h >> (k * 16)) & 0xFFFF) as f64 / 65535.0).sum();
+    let sum: f64 = (0..4)
+        .map(|k| ((h >> (k * 16)) & 0xFFFF) as f64 / 65535.0)
+        .sum();
     // Sum of 4 U(0,1): mean 2, variance 4/12.
     (sum - 2.0) * (3.0f64).sqrt()
 }
 
 /// Projected point helper for tests and labels: continuous pixel of a world point.
-pub fn project_world(camera: &Camera, odom_from_optical: &Iso3, p: &Point3<f64>) -> Option<(f64, f64)> {
+pub fn project_world(
+    camera: &Camera,
+    odom_from_optical: &Iso3,
+    p: &Point3<f64>,
+) -> Option<(f64, f64)> {
     camera.project(&(odom_from_optical.inverse() * p))
 }
 
@@ -685,12 +743,32 @@ mod tests {
             radius: 0.5,
             height: 2.0,
         };
-        let (t, n, _) = intersect(&p, &Vector3::new(-2.0, 0.0, 2.0), &Vector3::x(), f64::INFINITY).unwrap();
+        let (t, n, _) = intersect(
+            &p,
+            &Vector3::new(-2.0, 0.0, 2.0),
+            &Vector3::x(),
+            f64::INFINITY,
+        )
+        .unwrap();
         assert!(close(t, 1.5) && close(n.x, -1.0));
-        let (t, n, _) = intersect(&p, &Vector3::new(0.1, 0.0, 5.0), &-Vector3::z(), f64::INFINITY).unwrap();
+        let (t, n, _) = intersect(
+            &p,
+            &Vector3::new(0.1, 0.0, 5.0),
+            &-Vector3::z(),
+            f64::INFINITY,
+        )
+        .unwrap();
         assert!(close(t, 2.0) && close(n.z, 1.0));
         // Passes above the top.
-        assert!(intersect(&p, &Vector3::new(-2.0, 0.0, 3.5), &Vector3::x(), f64::INFINITY).is_none());
+        assert!(
+            intersect(
+                &p,
+                &Vector3::new(-2.0, 0.0, 3.5),
+                &Vector3::x(),
+                f64::INFINITY
+            )
+            .is_none()
+        );
     }
 
     #[test]
@@ -709,7 +787,10 @@ mod tests {
         let xs: Vec<f64> = (0..n).map(|i| gaussian_hash(7, i)).collect();
         let mean = xs.iter().sum::<f64>() / n as f64;
         let var = xs.iter().map(|x| (x - mean) * (x - mean)).sum::<f64>() / n as f64;
-        assert!(mean.abs() < 0.03 && (var - 1.0).abs() < 0.05, "{mean} {var}");
+        assert!(
+            mean.abs() < 0.03 && (var - 1.0).abs() < 0.05,
+            "{mean} {var}"
+        );
     }
 
     #[test]

@@ -105,7 +105,9 @@ pub enum Event {
 impl Event {
     pub fn stamp_ns(&self) -> i64 {
         match self {
-            Event::CmdVel { stamp_ns, .. } | Event::Pose { stamp_ns, .. } | Event::Frame { stamp_ns, .. } => *stamp_ns,
+            Event::CmdVel { stamp_ns, .. }
+            | Event::Pose { stamp_ns, .. }
+            | Event::Frame { stamp_ns, .. } => *stamp_ns,
         }
     }
 }
@@ -168,8 +170,12 @@ pub fn simulate(
             });
             for c in commands {
                 let (amount, speed, sigma) = match c {
-                    Command::Rotate { angle_rad } => (angle_rad, turn_speed_rad_s, noise.rot_rel_sigma),
-                    Command::Drive { distance_m } => (distance_m, drive_speed_m_s, noise.trans_rel_sigma),
+                    Command::Rotate { angle_rad } => {
+                        (angle_rad, turn_speed_rad_s, noise.rot_rel_sigma)
+                    }
+                    Command::Drive { distance_m } => {
+                        (distance_m, drive_speed_m_s, noise.trans_rel_sigma)
+                    }
                 };
                 let duration_ms = (amount.abs() / speed * 1000.0).ceil();
                 if duration_ms < 1.0 {
@@ -286,19 +292,28 @@ mod tests {
         let first_frame = 1_000_000_000 + 1_000_000_000;
         let c0 = first_frame + FRAME_GAP_NS;
         assert_eq!(cmds[0].0, c0);
-        assert!((cmds[0].2 - (PI / 2.0) / 3.142).abs() < 1e-12);
+        assert!((cmds[0].2 - (PI / 2.0) * 1000.0 / 3142.0).abs() < 1e-12);
         assert_eq!(cmds[1], (c0 + 3_142_000_000, 0.0, 0.0));
         let c2 = c0 + 3_142_000_000 + SETTLE_NS;
         assert_eq!(cmds[2].0, c2);
         assert!((cmds[2].1 - 0.3).abs() < 1e-12 && cmds[2].2 == 0.0);
-        let Some(Event::Frame { nominal, truth, stamp_ns, .. }) = ev.last() else {
+        let Some(Event::Frame {
+            nominal,
+            truth,
+            stamp_ns,
+            ..
+        }) = ev.last()
+        else {
             panic!("last event is not a frame")
         };
         assert!(nominal.x_m.abs() < 1e-12 && (nominal.y_m - 0.6).abs() < 1e-12);
         assert!((wrap_angle(nominal.yaw_rad - PI)).abs() < 1e-12);
         assert_eq!(nominal, truth);
         // last rotate ends at c2 + 2000 ms + settle + 3142 ms; frame FRAME_GAP after.
-        assert_eq!(*stamp_ns, c2 + 2_000_000_000 + SETTLE_NS + 3_142_000_000 + FRAME_GAP_NS);
+        assert_eq!(
+            *stamp_ns,
+            c2 + 2_000_000_000 + SETTLE_NS + 3_142_000_000 + FRAME_GAP_NS
+        );
         // Time never goes backwards.
         assert!(ev.windows(2).all(|w| w[0].stamp_ns() <= w[1].stamp_ns()));
     }
@@ -319,7 +334,11 @@ mod tests {
             panic!()
         };
         assert!((nominal.x_m - 2.0).abs() < 1e-12);
-        assert!((truth.x_m - 2.0 * factor).abs() < 1e-12, "{} {factor}", truth.x_m);
+        assert!(
+            (truth.x_m - 2.0 * factor).abs() < 1e-12,
+            "{} {factor}",
+            truth.x_m
+        );
     }
 
     #[test]

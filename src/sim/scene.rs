@@ -109,7 +109,10 @@ pub enum Shape {
         radius_m: f64,
         height_m: f64,
     },
-    Sphere { center_m: [f64; 3], radius_m: f64 },
+    Sphere {
+        center_m: [f64; 3],
+        radius_m: f64,
+    },
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -129,7 +132,11 @@ pub enum Texture {
     /// Two-octave value noise with feature size `scale_m`; albedo varies by +-`amount`.
     Noise { scale_m: f64, amount: f64 },
     /// Bands of width period/2 along `axis` (0 = x, 1 = y, 2 = z), darkened by `amount`.
-    Stripes { period_m: f64, axis: u8, amount: f64 },
+    Stripes {
+        period_m: f64,
+        axis: u8,
+        amount: f64,
+    },
     /// Rings around the primitive's local vertical axis, warped by noise.
     Wood { ring_period_m: f64, amount: f64 },
 }
@@ -174,7 +181,11 @@ impl Scene {
 
     /// Names of the objects in the scene, sorted, each once.
     pub fn object_names(&self) -> Vec<String> {
-        let mut names: Vec<String> = self.primitives.iter().filter_map(|p| p.object.clone()).collect();
+        let mut names: Vec<String> = self
+            .primitives
+            .iter()
+            .filter_map(|p| p.object.clone())
+            .collect();
         names.sort();
         names.dedup();
         names
@@ -185,7 +196,10 @@ impl Scene {
         let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());
         let positive = |v: &[f64]| v.iter().all(|x| x.is_finite() && *x > 0.0);
         if !positive(&self.room.size_m) {
-            return Err(format!("room.size_m {:?} must be positive", self.room.size_m));
+            return Err(format!(
+                "room.size_m {:?} must be positive",
+                self.room.size_m
+            ));
         }
         let mats = [&self.room.floor, &self.room.ceiling]
             .into_iter()
@@ -199,60 +213,108 @@ impl Scene {
             let ok = match m.texture {
                 Texture::Flat => true,
                 Texture::Noise { scale_m, amount } => positive(&[scale_m]) && finite(&[amount]),
-                Texture::Stripes { period_m, axis, amount } => {
-                    positive(&[period_m]) && axis < 3 && finite(&[amount])
-                }
-                Texture::Wood { ring_period_m, amount } => positive(&[ring_period_m]) && finite(&[amount]),
+                Texture::Stripes {
+                    period_m,
+                    axis,
+                    amount,
+                } => positive(&[period_m]) && axis < 3 && finite(&[amount]),
+                Texture::Wood {
+                    ring_period_m,
+                    amount,
+                } => positive(&[ring_period_m]) && finite(&[amount]),
             };
             if !ok {
-                return Err(format!("{what} texture {:?} needs positive sizes and axis 0..2", m.texture));
+                return Err(format!(
+                    "{what} texture {:?} needs positive sizes and axis 0..2",
+                    m.texture
+                ));
             }
         }
         let l = &self.light;
         let dir_len = l.direction.iter().map(|x| x * x).sum::<f64>().sqrt();
-        if !finite(&l.direction) || dir_len < 1e-9 || !(l.intensity >= 0.0) || !(l.ambient >= 0.0) {
-            return Err(format!("light {l:?} needs a non-zero direction and non-negative radiance"));
+        let radiance_ok = l.intensity.is_finite()
+            && l.ambient.is_finite()
+            && l.intensity >= 0.0
+            && l.ambient >= 0.0;
+        if !finite(&l.direction) || dir_len < 1e-9 || !radiance_ok {
+            return Err(format!(
+                "light {l:?} needs a non-zero direction and non-negative radiance"
+            ));
         }
         let c = &self.camera;
         if c.width == 0 || c.height == 0 || c.width > 4096 || c.height > 4096 {
-            return Err(format!("camera {} x {} must be 1 to 4096 pixels a side", c.width, c.height));
+            return Err(format!(
+                "camera {} x {} must be 1 to 4096 pixels a side",
+                c.width, c.height
+            ));
         }
-        if !(c.hfov_deg > 1.0 && c.hfov_deg < 170.0) || !finite(&c.mount_m) || !c.pitch_down_deg.is_finite() {
-            return Err(format!("camera hfov_deg {} must be in (1, 170), mount and pitch finite", c.hfov_deg));
+        let camera_ok = c.hfov_deg > 1.0
+            && c.hfov_deg < 170.0
+            && finite(&c.mount_m)
+            && c.pitch_down_deg.is_finite();
+        if !camera_ok {
+            return Err(format!(
+                "camera hfov_deg {} must be in (1, 170), mount and pitch finite",
+                c.hfov_deg
+            ));
         }
         if !positive(&[self.robot.drive_speed_m_s, self.robot.turn_speed_rad_s]) {
             return Err(format!("robot speeds {:?} must be positive", self.robot));
         }
         for (i, p) in self.primitives.iter().enumerate() {
             let ok = match p.shape {
-                Shape::Box { center_m, size_m, yaw_deg } => {
-                    finite(&center_m) && positive(&size_m) && yaw_deg.is_finite()
-                }
-                Shape::Cylinder { base_center_m, radius_m, height_m } => {
-                    finite(&base_center_m) && positive(&[radius_m, height_m])
-                }
+                Shape::Box {
+                    center_m,
+                    size_m,
+                    yaw_deg,
+                } => finite(&center_m) && positive(&size_m) && yaw_deg.is_finite(),
+                Shape::Cylinder {
+                    base_center_m,
+                    radius_m,
+                    height_m,
+                } => finite(&base_center_m) && positive(&[radius_m, height_m]),
                 Shape::Sphere { center_m, radius_m } => finite(&center_m) && positive(&[radius_m]),
             };
             if !ok {
-                return Err(format!("primitive {i} has a non-finite or non-positive size: {:?}", p.shape));
+                return Err(format!(
+                    "primitive {i} has a non-finite or non-positive size: {:?}",
+                    p.shape
+                ));
             }
             if p.object.as_deref() == Some("") {
                 return Err(format!("primitive {i} has an empty object name"));
             }
         }
-        if !self.primitives.iter().any(|p| p.object.as_deref() == Some(self.target.as_str())) {
+        if !self
+            .primitives
+            .iter()
+            .any(|p| p.object.as_deref() == Some(self.target.as_str()))
+        {
             return Err(format!("target object {:?} has no primitive", self.target));
         }
         let path = &self.path;
-        if !finite(&path.target_m) || !positive(&[path.tour_radius_m]) || !path.tour_start_deg.is_finite() {
-            return Err("path target_m, tour_radius_m and tour_start_deg must be finite, radius positive".into());
+        if !finite(&path.target_m)
+            || !positive(&[path.tour_radius_m])
+            || !path.tour_start_deg.is_finite()
+        {
+            return Err(
+                "path target_m, tour_radius_m and tour_start_deg must be finite, radius positive"
+                    .into(),
+            );
         }
         if path.train_views.is_empty()
-            || !path.train_views.iter().all(|v| v.bearing_deg.is_finite() && positive(&[v.distance_m]))
+            || !path
+                .train_views
+                .iter()
+                .all(|v| v.bearing_deg.is_finite() && positive(&[v.distance_m]))
         {
             return Err("path.train_views needs at least one view with a positive distance".into());
         }
-        if !path.background_stops.iter().all(|s| finite(&[s.x_m, s.y_m, s.yaw_deg])) {
+        if !path
+            .background_stops
+            .iter()
+            .all(|s| finite(&[s.x_m, s.y_m, s.yaw_deg]))
+        {
             return Err("path.background_stops must be finite".into());
         }
         Ok(())
@@ -266,14 +328,20 @@ mod tests {
     #[test]
     fn builtins_parse_and_name_their_target() {
         for name in BUILTIN_SCENES {
-            let s = Scene::from_json(builtin_json(name).unwrap()).unwrap_or_else(|e| panic!("{name}: {e}"));
+            let s = Scene::from_json(builtin_json(name).unwrap())
+                .unwrap_or_else(|e| panic!("{name}: {e}"));
             assert_eq!(s.name, name);
             assert_eq!(s.camera.width, 256);
             assert_eq!(s.camera.height, 240);
         }
         let two = Scene::from_json(builtin_json("two-chairs").unwrap()).unwrap();
         assert_eq!(two.object_names(), vec!["chair".to_owned()]);
-        let instances: Vec<u32> = two.primitives.iter().filter(|p| p.object.is_some()).map(|p| p.instance).collect();
+        let instances: Vec<u32> = two
+            .primitives
+            .iter()
+            .filter(|p| p.object.is_some())
+            .map(|p| p.instance)
+            .collect();
         assert!(instances.contains(&0) && instances.contains(&1));
     }
 
@@ -281,8 +349,17 @@ mod tests {
     fn validation_names_the_bad_field() {
         let mut s = Scene::from_json(builtin_json("chair").unwrap()).unwrap();
         s.target = "sofa".into();
-        assert_eq!(s.validate().unwrap_err(), "target object \"sofa\" has no primitive");
-        let bad = builtin_json("chair").unwrap().replacen("\"hfov_deg\"", "\"hfov\"", 1);
-        assert!(Scene::from_json(&bad).unwrap_err().contains("unknown field `hfov`"));
+        assert_eq!(
+            s.validate().unwrap_err(),
+            "target object \"sofa\" has no primitive"
+        );
+        let bad = builtin_json("chair")
+            .unwrap()
+            .replacen("\"hfov_deg\"", "\"hfov\"", 1);
+        assert!(
+            Scene::from_json(&bad)
+                .unwrap_err()
+                .contains("unknown field `hfov`")
+        );
     }
 }

@@ -1,0 +1,502 @@
+//! `objloc record`: the shipped recordings regenerate byte for byte from the commands in
+//! recordings/README.md, the true object centre projects inside its label, a SIGKILLed
+//! recording leaves a readable `.partial` and no final file, and import works and fails with
+//! one-line errors naming the file and line.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+use std::time::{Duration, Instant};
+
+use nalgebra::Point3;
+use objloc::geometry::{Camera, iso_from_parts, iso_from_pose};
+use objloc::session::{SessionMsg, SessionReader, Topics};
+
+const BIN: &str = env!("CARGO_BIN_EXE_objloc");
+
+fn repo() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+fn run(args: &[&str]) -> Output {
+    Command::new(BIN).args(args).output().expect("objloc runs")
+}
+
+/// The `objloc record sim ...` lines of recordings/README.md, as (output file name, args).
+fn readme_commands() -> Vec<(String, Vec<String>)> {
+    let text = std::fs::read_to_string(repo().join("recordings/README.md")).unwrap();
+    text.lines()
+        .filter(|l| l.starts_with("objloc record sim "))
+        .map(|l| {
+            let args: Vec<String> = l.split_whitespace().skip(1).map(str::to_owned).collect();
+            let out = args
+                .last()
+                .unwrap()
+                .trim_start_matches("recordings/")
+                .to_owned();
+            (out, args)
+        })
+        .collect()
+}
+
+#[test]
+fn shipped_recordings_regenerate_byte_identically() {
+    let cmds = readme_commands();
+    let names: Vec<&str> = cmds.iter().map(|c| c.0.as_str()).collect();
+    assert_eq!(
+        names,
+        [
+            "chair-train.mcap",
+            "chair-tour.mcap",
+            "bottle-train.mcap",
+            "bottle-tour.mcap",
+            "two-chairs-tour.mcap",
+            "chair-tour-drift.mcap"
+        ]
+    );
+    let dir = tempfile::tempdir().unwrap();
+    let mut total_bytes = 0;
+    for (i, (name, args)) in cmds.iter().enumerate() {
+        let out = dir.path().join(name);
+        let mut args = args.clone();
+        *args.last_mut().unwrap() = out.display().to_string();
+        let mut cmd = Command::new(BIN);
+        cmd.args(&args);
+        // Thread count must not matter: alternate one thread and two.
+        cmd.env("RAYON_NUM_THREADS", if i % 2 == 0 { "1" } else { "2" });
+        let o = cmd.output().unwrap();
+        assert!(
+            o.status.success(),
+            "{name}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        let shipped = std::fs::read(repo().join("recordings").join(name)).unwrap();
+        let fresh = std::fs::read(&out).unwrap();
+        total_bytes += shipped.len();
+        assert!(
+            shipped == fresh,
+            "{name}: regenerated file differs from the shipped one"
+        );
+    }
+    assert!(total_bytes < 25_000_000, "{total_bytes} bytes");
+}
+
+struct FrameView {
+    stamp_ns: i64,
+    regions: Vec<(String, objloc::msgs::RegionOfInterest)>,
+}
+
+/// Projects each ground-truth box centre into every tour frame with /odom (or, with
+/// `use_truth`, /ground_truth/pose) + /tf_static + K and returns (frame stamp, object, pixel,
+/// distance in pixels from the nearest label region of that object, 0 = inside).
+fn project_truth(path: &Path, use_truth: bool) -> Vec<(i64, String, (f64, f64), f64)> {
+    let reader = SessionReader::open(path, Topics::default()).unwrap();
+    let mut mount = None;
+    let mut camera = None;
+    let mut odom: Vec<(i64, objloc::geometry::Iso3)> = Vec::new();
+    let mut boxes = Vec::new();
+    let mut frames: Vec<FrameView> = Vec::new();
+    for m in reader.messages() {
+        match m.unwrap().msg {
+            SessionMsg::TfStatic(tf) => {
+                let t = &tf.transforms[0];
+                assert_eq!(
+                    (t.header.frame_id.as_str(), t.child_frame_id.as_str()),
+                    ("base_link", "camera_optical_frame")
+                );
+                mount = iso_from_parts(t.translation, t.rotation_xyzw);
+            }
+            SessionMsg::CameraInfo(ci) => camera = Camera::from_info(&ci),
+            SessionMsg::Odom(o) if !use_truth => {
+                odom.push((o.header.stamp_ns, iso_from_pose(&o.pose).unwrap()))
+            }
+            SessionMsg::GroundTruthPose(p) if use_truth => {
+                odom.push((p.header.stamp_ns, iso_from_pose(&p.pose).unwrap()))
+            }
+            SessionMsg::GroundTruthObjects(g) => {
+                for (name, pose) in g.object.iter().zip(&g.box_center) {
+                    boxes.push((
+                        name.clone(),
+                        Point3::from(iso_from_pose(pose).unwrap().translation.vector),
+                    ));
+                }
+            }
+            SessionMsg::Frame(f) => frames.push(FrameView {
+                stamp_ns: f.stamp_ns,
+                regions: Vec::new(),
+            }),
+            SessionMsg::Label(l) => {
+                let f = frames
+                    .iter_mut()
+                    .find(|f| f.stamp_ns == l.header.stamp_ns)
+                    .unwrap();
+                f.regions
+                    .extend(l.regions.iter().map(|r| (l.object.clone(), *r)));
+            }
+            _ => {}
+        }
+    }
+    let (mount, camera) = (mount.unwrap(), camera.unwrap());
+    let mut out = Vec::new();
+    for f in &frames {
+        // Frames are taken standing still, with an /odom message at the frame stamp.
+        let base = odom.iter().find(|(s, _)| *s == f.stamp_ns).unwrap().1;
+        let optical_from_odom = (base * mount).inverse();
+        for (name, centre) in &boxes {
+            let (u, v) = camera.project(&(optical_from_odom * centre)).unwrap();
+            let distance = f
+                .regions
+                .iter()
+                .filter(|(o, _)| o == name)
+                .map(|(_, r)| {
+                    let (x0, y0) = (f64::from(r.x_offset), f64::from(r.y_offset));
+                    let (x1, y1) = (x0 + f64::from(r.width), y0 + f64::from(r.height));
+                    let dx = (x0 - u).max(u - x1).max(0.0);
+                    let dy = (y0 - v).max(v - y1).max(0.0);
+                    dx.hypot(dy)
+                })
+                .fold(f64::INFINITY, f64::min);
+            out.push((f.stamp_ns, name.clone(), (u, v), distance));
+        }
+    }
+    out
+}
+
+#[test]
+fn true_centre_projects_inside_the_label() {
+    // With the true camera pose the geometry is exact: every tour, drift included.
+    for name in [
+        "chair-tour.mcap",
+        "bottle-tour.mcap",
+        "two-chairs-tour.mcap",
+        "chair-tour-drift.mcap",
+    ] {
+        let rows = project_truth(&repo().join("recordings").join(name), true);
+        let boxes = if name.starts_with("two") { 2 } else { 1 };
+        assert_eq!(rows.len(), 8 * boxes, "{name}");
+        for (stamp, object, (u, v), distance) in &rows {
+            assert!(
+                *distance == 0.0,
+                "{name}: {object} centre projects to ({u:.1}, {v:.1}), {distance:.1} px outside its labels at {stamp}"
+            );
+            // and well inside the image: the whole object is in view
+            assert!(
+                (20.0..236.0).contains(u) && (20.0..220.0).contains(v),
+                "{name}: ({u}, {v})"
+            );
+        }
+    }
+    // With /odom (what the fuser uses) the chairs are hit in every frame. The bottle is only
+    // 15 px wide and default odometry drift (0.6 % of ~225 degrees turned per stop) moves it
+    // by up to 10 px (2.6 degrees at stop 2), so it may fall just beside its label.
+    for (name, slack_px) in [
+        ("chair-tour.mcap", 0.0),
+        ("two-chairs-tour.mcap", 0.0),
+        ("bottle-tour.mcap", 12.0),
+    ] {
+        let rows = project_truth(&repo().join("recordings").join(name), false);
+        let inside = rows.iter().filter(|r| r.3 == 0.0).count();
+        for (stamp, object, (u, v), distance) in &rows {
+            assert!(
+                *distance <= slack_px,
+                "{name}: {object} centre projects by /odom to ({u:.1}, {v:.1}), {distance:.1} px outside its labels at {stamp}"
+            );
+        }
+        assert!(
+            inside * 4 >= rows.len() * 3,
+            "{name}: only {inside} of {} inside",
+            rows.len()
+        );
+    }
+}
+
+#[test]
+fn train_sessions_have_three_views_and_eighteen_backgrounds() {
+    let o = run(&[
+        "inspect",
+        "--json",
+        repo().join("recordings/chair-train.mcap").to_str().unwrap(),
+    ]);
+    assert!(o.status.success());
+    let j: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(j["frames"], 21);
+    assert_eq!(j["labelled_frames"], 3);
+    assert_eq!(j["background_frames"], 18);
+    assert_eq!(j["objects_labelled"], serde_json::json!(["chair"]));
+    assert_eq!(j["intrinsics"]["width"], 256);
+    assert_eq!(j["intrinsics"]["height"], 240);
+    assert_eq!(j["warnings"], serde_json::json!([]));
+}
+
+#[test]
+fn killed_recording_leaves_a_readable_partial_and_no_final_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("long.mcap");
+    let partial = dir.path().join("long.mcap.partial");
+    let mut child = Command::new(BIN)
+        .args([
+            "record", "sim", "--scene", "chair", "--kind", "tour", "--stops", "600", "--seed", "9",
+            "-o",
+        ])
+        .arg(&out)
+        .spawn()
+        .unwrap();
+    let start = Instant::now();
+    // Wait until several 256 KiB chunks have reached the file.
+    loop {
+        let len = std::fs::metadata(&partial).map(|m| m.len()).unwrap_or(0);
+        if len > 1_500_000 {
+            break;
+        }
+        assert!(
+            child.try_wait().unwrap().is_none(),
+            "recording ended before it could be killed"
+        );
+        assert!(
+            start.elapsed() < Duration::from_secs(60),
+            "partial file does not grow"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    child.kill().unwrap(); // SIGKILL
+    child.wait().unwrap();
+    assert!(
+        !out.exists(),
+        "the final name must not appear for a killed recording"
+    );
+    let o = run(&["inspect", partial.to_str().unwrap()]);
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        o.status.success(),
+        "{text}{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert!(text.contains("warning: file is truncated"), "{text}");
+    let frames: usize = text
+        .lines()
+        .find_map(|l| l.strip_prefix("frames:"))
+        .unwrap()
+        .trim()
+        .parse()
+        .unwrap();
+    assert!((5..600).contains(&frames), "{frames} frames");
+}
+
+#[test]
+fn same_seed_same_bytes_other_seed_other_bytes() {
+    let dir = tempfile::tempdir().unwrap();
+    let rec = |name: &str, seed: &str| {
+        let p = dir.path().join(name);
+        let o = run(&[
+            "record",
+            "sim",
+            "--scene",
+            "bottle",
+            "--kind",
+            "tour",
+            "--stops",
+            "3",
+            "--seed",
+            seed,
+            "-o",
+            p.to_str().unwrap(),
+        ]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        std::fs::read(p).unwrap()
+    };
+    let a = rec("a.mcap", "11");
+    assert_eq!(a, rec("b.mcap", "11"));
+    assert_ne!(a, rec("c.mcap", "12"));
+}
+
+#[test]
+fn bad_scene_and_options_are_one_line_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("x.mcap");
+    let o = run(&[
+        "record",
+        "sim",
+        "--scene",
+        "sofa",
+        "--kind",
+        "tour",
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    assert_eq!(o.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(
+        err.trim(),
+        "error: unknown scene \"sofa\"; built-in scenes are chair, bottle, two-chairs"
+    );
+    let scene = dir.path().join("s.json");
+    std::fs::write(&scene, "{\"name\": 3}").unwrap();
+    let o = run(&[
+        "record",
+        "sim",
+        "--scene-file",
+        scene.to_str().unwrap(),
+        "--kind",
+        "tour",
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    assert_eq!(o.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.starts_with(&format!("error: scene {}: invalid type", scene.display())),
+        "{err}"
+    );
+    assert_eq!(err.lines().count(), 1);
+    let o = run(&[
+        "record",
+        "sim",
+        "--scene",
+        "chair",
+        "--kind",
+        "train",
+        "--frames",
+        "99",
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("--frames must be 1 to 8, got 99"));
+    assert!(!out.exists() && !dir.path().join("x.mcap.partial").exists());
+}
+
+fn write_png(path: &Path, w: u32, h: u32, rgb: [u8; 3]) {
+    let img = image::RgbImage::from_pixel(w, h, image::Rgb(rgb));
+    img.save(path).unwrap();
+}
+
+#[test]
+fn import_tum_sequence_with_labels() {
+    let dir = tempfile::tempdir().unwrap();
+    let images = dir.path().join("rgb");
+    std::fs::create_dir(&images).unwrap();
+    // File stems are timestamps: matched by interpolating the trajectory.
+    write_png(&images.join("100.50.png"), 32, 24, [200, 20, 20]);
+    write_png(&images.join("101.00.png"), 32, 24, [20, 200, 20]);
+    let traj = dir.path().join("traj.txt");
+    std::fs::write(
+        &traj,
+        "# timestamp tx ty tz qx qy qz qw\n100.0 0 0 0 0 0 0 1\n101.0 2 0 0 0 0 0 1\n",
+    )
+    .unwrap();
+    let labels = dir.path().join("labels.csv");
+    std::fs::write(
+        &labels,
+        "image,x,y,width,height\n100.50.png,4,5,10,8\n101.00.png,,,,\n",
+    )
+    .unwrap();
+    let out = dir.path().join("imp.mcap");
+    let o = run(&[
+        "record",
+        "import",
+        "--images",
+        images.to_str().unwrap(),
+        "--trajectory",
+        traj.to_str().unwrap(),
+        "--camera",
+        "30,31,16,12",
+        "--labels",
+        labels.to_str().unwrap(),
+        "--object",
+        "cup",
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let reader = SessionReader::open(&out, Topics::default()).unwrap();
+    let mut odom_x = Vec::new();
+    let mut regions = Vec::new();
+    let mut k = Vec::new();
+    for m in reader.messages() {
+        match m.unwrap().msg {
+            SessionMsg::Odom(o) => odom_x.push((o.header.stamp_ns, o.pose.position[0])),
+            SessionMsg::Label(l) => regions.push((l.object, l.regions.len())),
+            SessionMsg::CameraInfo(c) => k.push((c.k[0], c.k[4], c.k[2], c.k[5], c.width)),
+            SessionMsg::TfStatic(t) => {
+                assert_eq!(t.transforms[0].rotation_xyzw, [0.0, 0.0, 0.0, 1.0])
+            }
+            _ => {}
+        }
+    }
+    // 100.5 s is halfway between x = 0 and x = 2.
+    assert_eq!(odom_x, vec![(100_500_000_000, 1.0), (101_000_000_000, 2.0)]);
+    assert_eq!(regions, vec![("cup".to_owned(), 1), ("cup".to_owned(), 0)]);
+    assert_eq!(k[0], (30.0, 31.0, 16.0, 12.0, 32));
+}
+
+#[test]
+fn import_errors_name_file_and_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let images = dir.path().join("rgb");
+    std::fs::create_dir(&images).unwrap();
+    write_png(&images.join("a.png"), 8, 8, [1, 2, 3]);
+    write_png(&images.join("b.png"), 8, 8, [1, 2, 3]);
+    let traj = dir.path().join("traj.txt");
+    std::fs::write(&traj, "1.0 0 0 0 0 0 0 1\n2.0 0 0 0 0 0 1\n").unwrap();
+    let out = dir.path().join("imp.mcap");
+    let args = |traj: &Path, extra: &[&str]| {
+        let mut a: Vec<String> = [
+            "record",
+            "import",
+            "--images",
+            images.to_str().unwrap(),
+            "--trajectory",
+            traj.to_str().unwrap(),
+            "--camera",
+            "5,5,4,4",
+            "-o",
+            out.to_str().unwrap(),
+        ]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
+        a.extend(extra.iter().map(|s| s.to_string()));
+        a
+    };
+    let o = Command::new(BIN).args(args(&traj, &[])).output().unwrap();
+    assert_eq!(o.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains(&format!("{}:2: expected 8 fields", traj.display())),
+        "{err}"
+    );
+    assert_eq!(err.lines().count(), 1);
+    // In-order matching needs one line per image; a label for an unknown image names its line.
+    std::fs::write(&traj, "1.0 0 0 0 0 0 0 1\n2.0 0 0 0 0 0 0 1\n").unwrap();
+    let labels = dir.path().join("l.csv");
+    std::fs::write(&labels, "a.png,0,0,4,4\nzzz.png,,,,\n").unwrap();
+    let o = Command::new(BIN)
+        .args(args(&traj, &["--labels", labels.to_str().unwrap()]))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains(&format!(
+            "{}:2: image \"zzz.png\" is not in",
+            labels.display()
+        )),
+        "{err}"
+    );
+    std::fs::write(&labels, "a.png,6,0,4,4\n").unwrap();
+    let o = Command::new(BIN)
+        .args(args(&traj, &["--labels", labels.to_str().unwrap()]))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains(&format!(
+            "{}:1: box x 6 y 0 4 x 4 leaves the 8 x 8 image",
+            labels.display()
+        )),
+        "{err}"
+    );
+    assert!(!out.exists());
+    // And the good case, in order.
+    let o = Command::new(BIN).args(args(&traj, &[])).output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("matched in order"));
+}
