@@ -2,15 +2,17 @@
 //!
 //! Invariants: works on any ROS 2 MCAP, session or not: topics without a session role are
 //! counted, not decoded; missing session topics are listed, not fatal; damage that leaves the
-//! rest readable (a truncated tail) is a warning with how much was read.
+//! rest readable (a truncated tail) is a warning with how much was read; every frame of a
+//! session topic is decoded, and the first that does not decode is an error.
 
 use std::collections::BTreeMap;
 use std::path::Path;
 
+use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::geometry::Camera;
-use crate::session::{Role, SessionError, SessionMsg, SessionReader, Topics, fmt_ns};
+use crate::session::{Frame, Role, SessionError, SessionMsg, SessionReader, Topics, fmt_ns};
 
 /// A frame counts as posed when an /odom message lies within this of its stamp.
 pub const POSE_TOLERANCE_NS: i64 = 50_000_000;
@@ -112,6 +114,7 @@ pub fn summarize_reader(reader: &SessionReader) -> Result<Summary, SessionError>
     let mut labels: Vec<(i64, u64, bool, String)> = Vec::new();
     let mut gt_objects: Vec<String> = Vec::new();
     let mut gt_present = false;
+    let mut frames: Vec<(String, u64, Frame)> = Vec::new();
 
     for msg in reader.messages() {
         let m = msg?;
@@ -129,6 +132,7 @@ pub fn summarize_reader(reader: &SessionReader) -> Result<Summary, SessionError>
                     });
                 }
                 frame_stamps.push((f.stamp_ns, m.log_time_ns));
+                frames.push((m.topic, m.log_time_ns, f));
             }
             SessionMsg::CameraInfo(ci) => {
                 info_size = Some((ci.width, ci.height));
@@ -160,13 +164,31 @@ pub fn summarize_reader(reader: &SessionReader) -> Result<Summary, SessionError>
         }
     }
 
-    if let (Some(img), Some((w, h))) = (&image, info_size) {
-        if (img.width, img.height) != (w, h) {
-            warnings.push(format!(
-                "frames are {} x {} but CameraInfo says {w} x {h}",
-                img.width, img.height
-            ));
-        }
+    // Every frame must decode: one corrupt PNG would otherwise surface only deep inside train
+    // or fuse. The first failure in replay order is reported, whatever the thread count.
+    let failures: Vec<Option<String>> = frames
+        .par_iter()
+        .map(|(_, _, f)| f.decode_rgb8().err())
+        .collect();
+    if let Some(((topic, log_time_ns, _), what)) = frames
+        .iter()
+        .zip(failures)
+        .find_map(|(frame, e)| e.map(|e| (frame, e)))
+    {
+        return Err(SessionError::Invalid {
+            at: reader.at(Some(topic), *log_time_ns),
+            what,
+        });
+    }
+    drop(frames);
+
+    if let (Some(img), Some((w, h))) = (&image, info_size)
+        && (img.width, img.height) != (w, h)
+    {
+        warnings.push(format!(
+            "frames are {} x {} but CameraInfo says {w} x {h}",
+            img.width, img.height
+        ));
     }
 
     odom_stamps.sort_unstable();

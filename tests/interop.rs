@@ -1,6 +1,7 @@
-//! Interop with tools we did not write: sessions written by objloc must read in the Python `mcap`
-//! + `mcap-ros2-support` readers and convert with Rerun's `rerun mcap convert`; sessions written
-//! by the Python `rosbags` package and the real rosbag2 bags in shared/ must read in objloc.
+//! Interop with tools we did not write: sessions written by objloc must read in the Python
+//! `mcap` and `mcap-ros2-support` readers and convert with Rerun's `rerun mcap convert`;
+//! sessions written by the Python `rosbags` package and the real rosbag2 bags in shared/ must
+//! read in objloc.
 //!
 //! Invariants: the Python tools run from a venv that these tests create themselves
 //! (target/pyenv, or `$OBJLOC_PYENV`) from tests/py/requirements.txt, exactly once per

@@ -71,8 +71,18 @@ pub fn main(cli: Cli) -> std::process::ExitCode {
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
-            // `{:#}` prints the whole context chain on one line.
-            let line = format!("{e:#}").replace('\n', " ");
+            // The whole context chain on one line; a cause whose text its parent's message
+            // already ends with (thiserror messages that embed their source) is not repeated.
+            let mut line = String::new();
+            for cause in e.chain() {
+                let text = cause.to_string().replace('\n', " ");
+                if !line.ends_with(&text) {
+                    if !line.is_empty() {
+                        line.push_str(": ");
+                    }
+                    line.push_str(&text);
+                }
+            }
             eprintln!("error: {line}");
             std::process::ExitCode::from(1)
         }

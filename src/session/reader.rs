@@ -117,8 +117,10 @@ impl SessionReader {
     }
 
     fn scan(&mut self, buf: &[u8]) -> Result<(), SessionError> {
+        // Prevalidate: a chunk's CRC is checked before any of its records is handed out, so a
+        // damaged chunk contributes no message and errors name the last message before it.
         let opts = LinearReaderOptions::default()
-            .with_validate_chunk_crcs(true)
+            .with_prevalidate_chunk_crcs(true)
             .with_record_length_limit(RECORD_LENGTH_LIMIT);
         let mut reader = LinearReader::new_with_options(opts);
         let mut schemas: BTreeMap<u16, (String, String, Vec<u8>)> = BTreeMap::new();
