@@ -237,10 +237,8 @@ fn python_mcap_decodes_every_message_objloc_writes() {
     let fx = write_fixture_session(&path);
     let d = py_json("decode_session.py", &[&path]);
 
-    assert_eq!(
-        d["header"],
-        json!({"profile": "ros2", "library": "objloc 0.1.0"})
-    );
+    let library = format!("objloc {}", env!("CARGO_PKG_VERSION"));
+    assert_eq!(d["header"], json!({"profile": "ros2", "library": library}));
     let schemas = d["schemas"].as_array().unwrap();
     let channels = d["channels"].as_array().unwrap();
     assert_eq!(schemas.len(), 8);
