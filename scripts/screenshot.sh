@@ -12,7 +12,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 RRD="${1:-demo/demo.rrd}"
 OUT="${2:-docs/img/demo.png}"
-WAIT_MS="${WAIT_MS:-25000}"
+WAIT_MS="${WAIT_MS:-45000}"  # the software rasterizer needs ~40 s to load and lay out
 PYENV="${OBJLOC_PYENV:-target/pyenv}"
 [ -f "$RRD" ] || { echo "error: $RRD not found (run objloc demo first)" >&2; exit 1; }
 [ -x "$PYENV/bin/rerun" ] || { echo "error: $PYENV/bin/rerun missing (run cargo test --release --test viz once)" >&2; exit 1; }

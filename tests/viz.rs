@@ -426,3 +426,31 @@ fn scratch_write_rrd() {
     let model = trained_model(dir);
     fuse_to_rrd(&model, &dir.join("tour.rrd"));
 }
+
+/// Cost of streaming: replay of the chair tour with and without the Rerun observer
+/// (`cargo test --release --test viz timing -- --ignored --nocapture`).
+#[test]
+#[ignore]
+fn timing_with_and_without_rerun() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = trained_model(dir.path());
+    let m = Model::load(&model).unwrap();
+    let reader = SessionReader::open(
+        &repo_dir().join("recordings/chair-tour.mcap"),
+        Topics::default(),
+    )
+    .unwrap();
+    let t0 = std::time::Instant::now();
+    replay(&reader, &m, &FuseOptions::default(), &mut []).unwrap();
+    let plain = t0.elapsed();
+    let t1 = std::time::Instant::now();
+    let rrd = dir.path().join("t.rrd");
+    fuse_to_rrd(&model, &rrd);
+    let with = t1.elapsed();
+    let mb = std::fs::metadata(&rrd).unwrap().len() as f64 / 1e6;
+    println!(
+        "replay {:.3} s, replay + rrd {:.3} s, rrd {mb:.2} MB",
+        plain.as_secs_f64(),
+        with.as_secs_f64()
+    );
+}

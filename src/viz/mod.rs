@@ -82,10 +82,10 @@ fn target_from_matches(m: &clap::ArgMatches) -> Target {
     if given("stdout") && m.get_flag("stdout") {
         return Target::Stdout;
     }
-    if given("save") {
-        if let Some(p) = m.get_one::<PathBuf>("save") {
-            return Target::Save(p.clone());
-        }
+    if given("save")
+        && let Some(p) = m.get_one::<PathBuf>("save")
+    {
+        return Target::Save(p.clone());
     }
     if given("connect") {
         let url = m
@@ -198,7 +198,7 @@ pub fn open_stream(
         .batcher_config(one_chunk_per_log())
         .enabled(true);
     if let Some(bp) = blueprint {
-        builder = builder.with_default_blueprint(bp);
+        builder = builder.with_blueprint(bp);
     }
     let (rec, file) = match &args.target {
         Target::Default | Target::Save(_) => {
