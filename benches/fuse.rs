@@ -28,9 +28,12 @@ fn setup(n: usize) -> (Grid, objloc::geometry::Iso3, Camera, TileEvidence) {
     let half = n as f64 * 0.04 / 2.0;
     let spec = GridSpec::from_bounds([-half, -half, 0.0], [half, half, 2.0 * half], 0.04).unwrap();
     let grid = Grid::new(spec, 0.005).unwrap();
-    let odom_from_camera = iso_from_xy_yaw(-half - 0.5, 0.1, 0.05) * camera_mount([0.0, 0.0, 1.2], 0.25);
+    let odom_from_camera =
+        iso_from_xy_yaw(-half - 0.5, 0.1, 0.05) * camera_mount([0.0, 0.0, 1.2], 0.25);
     let cam = Camera::with_hfov(256, 240, 1.05);
-    let p: Vec<f32> = (0..30 * 32).map(|i| 0.001 + 0.9 * ((i * 7919) % 997) as f32 / 997.0).collect();
+    let p: Vec<f32> = (0..30 * 32)
+        .map(|i| 0.001 + 0.9 * ((i * 7919) % 997) as f32 / 997.0)
+        .collect();
     let ev = TileEvidence::from_probabilities(30, 32, 8, &p, 0.005);
     (grid, odom_from_camera.inverse(), cam, ev)
 }
@@ -43,7 +46,10 @@ fn main() {
         sizes.push(300);
         sizes.push(400);
     }
-    println!("{:>6} {:>12} {:>14} {:>14} {:>14} {:>14}", "grid", "cells", "update ms", "translate ms", "rotate ms", "prob-blur ms");
+    println!(
+        "{:>6} {:>12} {:>14} {:>14} {:>14} {:>14}",
+        "grid", "cells", "update ms", "translate ms", "rotate ms", "prob-blur ms"
+    );
     let mut at100 = (0.0, 0.0);
     for &n in &sizes {
         let (mut g, cam_from_odom, cam, ev) = setup(n);
@@ -53,13 +59,27 @@ fn main() {
         });
         let mut b = Blurrer::default();
         // A 0.5 m drive at sigma_v 0.01 m/s x 1.7 s and a 90 degree turn at 0.01 rad/s x 3 s.
-        let translate = median_ms(reps.min(9), || b.translate(&mut g, [0.8, 0.6], 0.017, BlurMode::LogOdds));
-        let rotate = median_ms(reps.min(9), || b.rotate(&mut g, [0.0, -1.5], 0.03, BlurMode::LogOdds));
-        let prob = median_ms(reps.min(9), || b.translate(&mut g, [0.8, 0.6], 0.017, BlurMode::Probability));
+        let translate = median_ms(reps.min(9), || {
+            b.translate(&mut g, [0.8, 0.6], 0.017, BlurMode::LogOdds)
+        });
+        let rotate = median_ms(reps.min(9), || {
+            b.rotate(&mut g, [0.0, -1.5], 0.03, BlurMode::LogOdds)
+        });
+        let prob = median_ms(reps.min(9), || {
+            b.translate(&mut g, [0.8, 0.6], 0.017, BlurMode::Probability)
+        });
         if n == 100 {
             at100 = (update, translate.max(rotate));
         }
-        println!("{:>5}^3 {:>12} {:>14.2} {:>14.2} {:>14.2} {:>14.2}", n, n * n * n, update, translate, rotate, prob);
+        println!(
+            "{:>5}^3 {:>12} {:>14.2} {:>14.2} {:>14.2} {:>14.2}",
+            n,
+            n * n * n,
+            update,
+            translate,
+            rotate,
+            prob
+        );
     }
     let py = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("target/pyenv/bin/python");
     let script = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/numpy_peer.py");
@@ -82,10 +102,15 @@ fn main() {
                     );
                 }
             }
-            Ok(out) => eprintln!("numpy peer failed: {}", String::from_utf8_lossy(&out.stderr)),
+            Ok(out) => eprintln!(
+                "numpy peer failed: {}",
+                String::from_utf8_lossy(&out.stderr)
+            ),
             Err(e) => eprintln!("numpy peer not run: {e}"),
         }
     } else {
-        println!("(no target/pyenv: numpy peer skipped; `cargo test --release --test interop` creates it)");
+        println!(
+            "(no target/pyenv: numpy peer skipped; `cargo test --release --test interop` creates it)"
+        );
     }
 }

@@ -16,16 +16,22 @@ pub const CDR_LE_HEADER: [u8; 4] = [0x00, 0x01, 0x00, 0x00];
 pub enum CdrError {
     #[error("payload of {len} bytes is too short for the 4-byte CDR encapsulation header")]
     NoHeader { len: usize },
-    #[error("unsupported CDR encapsulation {kind:#06x} (only CDR_LE 0x0001 and CDR_BE 0x0000 are read)")]
+    #[error(
+        "unsupported CDR encapsulation {kind:#06x} (only CDR_LE 0x0001 and CDR_BE 0x0000 are read)"
+    )]
     Encapsulation { kind: u16 },
-    #[error("payload cut short: needed {needed} bytes at offset {offset} for {what}, only {available} left")]
+    #[error(
+        "payload cut short: needed {needed} bytes at offset {offset} for {what}, only {available} left"
+    )]
     Short {
         what: &'static str,
         offset: usize,
         needed: usize,
         available: usize,
     },
-    #[error("sequence length {declared} for {what} at offset {offset} exceeds the {available} bytes left")]
+    #[error(
+        "sequence length {declared} for {what} at offset {offset} exceeds the {available} bytes left"
+    )]
     Length {
         what: &'static str,
         offset: usize,

@@ -100,7 +100,10 @@ fn dist(a: [f64; 3], b: [f64; 3]) -> f64 {
 }
 
 /// Greedy nearest matching: (matches, unmatched truths, unmatched objects).
-pub fn match_objects(objects: &[Object], truth: &[TrueObject]) -> (Vec<Match>, Vec<usize>, Vec<usize>) {
+pub fn match_objects(
+    objects: &[Object],
+    truth: &[TrueObject],
+) -> (Vec<Match>, Vec<usize>, Vec<usize>) {
     let mut pairs: Vec<(f64, usize, usize)> = Vec::new();
     for (t, tr) in truth.iter().enumerate() {
         for (o, ob) in objects.iter().enumerate() {
@@ -151,7 +154,11 @@ pub fn voxel_iou(spec: &GridSpec, estimated: &[usize], truth: &[TrueObject]) -> 
         .filter(|i| truth_cells.binary_search(i).is_ok())
         .count();
     let union = estimated.len() + truth_cells.len() - inter;
-    if union == 0 { 0.0 } else { inter as f64 / union as f64 }
+    if union == 0 {
+        0.0
+    } else {
+        inter as f64 / union as f64
+    }
 }
 
 pub fn evaluate(report_name: &str, report: &Report, truth: &[TrueObject]) -> Evaluation {
@@ -172,7 +179,8 @@ pub fn evaluate(report_name: &str, report: &Report, truth: &[TrueObject]) -> Eva
                 stamp_ns: f.stamp_ns,
                 objects: f.objects.len(),
                 matched: m.len(),
-                mean_error_m: (!errs.is_empty()).then(|| errs.iter().sum::<f64>() / errs.len() as f64),
+                mean_error_m: (!errs.is_empty())
+                    .then(|| errs.iter().sum::<f64>() / errs.len() as f64),
                 max_error_m: errs.iter().copied().reduce(f64::max),
             }
         })
@@ -181,7 +189,10 @@ pub fn evaluate(report_name: &str, report: &Report, truth: &[TrueObject]) -> Eva
         report: report_name.to_owned(),
         matches,
         missed: missed.iter().map(|&t| truth[t].name.clone()).collect(),
-        spurious: spurious.iter().map(|&o| report.objects[o].centroid_m).collect(),
+        spurious: spurious
+            .iter()
+            .map(|&o| report.objects[o].centroid_m)
+            .collect(),
         voxel_iou: voxel_iou(&spec, &report.object_cells, truth),
         per_frame,
     }
@@ -211,10 +222,22 @@ mod tests {
         let mut b2 = iso_from_xy_yaw(1.0, 0.0, 0.0);
         b2.translation.z = 0.45;
         let truth = vec![
-            TrueObject { name: "chair".into(), odom_from_box: b1, size_m: [0.5, 0.5, 0.9] },
-            TrueObject { name: "chair".into(), odom_from_box: b2, size_m: [0.5, 0.5, 0.9] },
+            TrueObject {
+                name: "chair".into(),
+                odom_from_box: b1,
+                size_m: [0.5, 0.5, 0.9],
+            },
+            TrueObject {
+                name: "chair".into(),
+                odom_from_box: b2,
+                size_m: [0.5, 0.5, 0.9],
+            },
         ];
-        let objects = vec![obj([0.95, 0.0, 0.45]), obj([0.03, 0.04, 0.45]), obj([3.0, 3.0, 0.5])];
+        let objects = vec![
+            obj([0.95, 0.0, 0.45]),
+            obj([0.03, 0.04, 0.45]),
+            obj([3.0, 3.0, 0.5]),
+        ];
         let (m, missed, spurious) = match_objects(&objects, &truth);
         assert_eq!(m.len(), 2);
         assert_eq!(m[0].object_index, 1);
@@ -233,7 +256,11 @@ mod tests {
         let mut b = iso_from_xy_yaw(0.5, 0.5, 0.0);
         b.translation.z = 0.5;
         // Box of 0.4 m: cells 3..7 on each axis (centres 0.35..0.65) = 64 cells.
-        let truth = vec![TrueObject { name: "x".into(), odom_from_box: b, size_m: [0.4, 0.4, 0.4] }];
+        let truth = vec![TrueObject {
+            name: "x".into(),
+            odom_from_box: b,
+            size_m: [0.4, 0.4, 0.4],
+        }];
         let inside: Vec<usize> = (0..spec.cells())
             .filter(|&i| {
                 let [a, bb, c] = spec.ijk(i);

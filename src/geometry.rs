@@ -22,7 +22,7 @@ pub fn iso_from_parts(t: [f64; 3], q_xyzw: [f64; 4]) -> Option<Iso3> {
     }
     let q = nalgebra::Quaternion::new(q_xyzw[3], q_xyzw[0], q_xyzw[1], q_xyzw[2]);
     let norm = q.norm();
-    if !(norm > 1e-9) {
+    if norm.is_nan() || norm <= 1e-9 {
         return None;
     }
     Some(Iso3::from_parts(

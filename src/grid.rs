@@ -13,13 +13,13 @@ use thiserror::Error;
 
 use crate::geometry::{Camera, Iso3};
 
-/// Largest grid objloc allocates: log-odds (4 bytes) + view count (2 bytes) + the blur's
-/// scratch buffer (8 bytes) per cell. 4 GiB keeps a 24 GiB machine safe with room for the
-/// rest; a request beyond it is refused before anything is allocated.
+/// Largest grid objloc allocates, all buffers counted: 4 GiB keeps a 24 GiB machine safe with
+/// room for the rest; a request beyond it is refused before anything is allocated.
 pub const MAX_GRID_BYTES: u64 = 4 << 30;
 
-/// Bytes one cell costs (log-odds f32, views u16, blur scratch f64).
-pub const BYTES_PER_CELL: u64 = 4 + 2 + 8;
+/// Bytes one cell costs: log-odds f32, views u16, a frame's evidence f32, and the blur's two
+/// f64 scratch buffers.
+pub const BYTES_PER_CELL: u64 = 4 + 2 + 4 + 8 + 8;
 
 #[derive(Debug, Error, Clone, PartialEq)]
 pub enum GridError {
@@ -142,7 +142,13 @@ impl TileEvidence {
     /// From tile probabilities (row-major) against `prior`. Probabilities are expected
     /// strictly inside (0, 1) (the tree's leaves are smoothed); one at 0 or 1 would be an
     /// infinite update, so it is held at the nearest representable f32 odds instead.
-    pub fn from_probabilities(rows: usize, cols: usize, tile_px: u32, p: &[f32], prior: f64) -> Self {
+    pub fn from_probabilities(
+        rows: usize,
+        cols: usize,
+        tile_px: u32,
+        p: &[f32],
+        prior: f64,
+    ) -> Self {
         let lp = logit(prior);
         let delta = p
             .iter()
@@ -210,58 +216,67 @@ impl Grid {
     /// (larger than a tile's footprint) would collect the evidence of many tiles.
     ///
     /// Returns the number of cells updated.
-    pub fn integrate(&mut self, camera_from_odom: &Iso3, camera: &Camera, ev: &TileEvidence) -> usize {
-        let spec = self.spec;
-        let [_, ny, nz] = spec.dims;
-        let slab = ny * nz;
-        if slab == 0 {
-            return 0;
-        }
-        let rot = camera_from_odom.rotation.to_rotation_matrix();
-        let step_k: Vector3<f64> = rot * Vector3::new(0.0, 0.0, spec.voxel_size_m);
-        let tile = f64::from(ev.tile_px);
-        let u_max = ev.cols as f64 * tile;
-        let v_max = ev.rows as f64 * tile;
+    pub fn integrate(
+        &mut self,
+        camera_from_odom: &Iso3,
+        camera: &Camera,
+        ev: &TileEvidence,
+    ) -> usize {
         let clamp = self.clamp;
-        let cam = *camera;
-        let delta = &ev.delta;
-        let cols = ev.cols;
-        self.log_odds
-            .par_chunks_mut(slab)
-            .zip(self.views.par_chunks_mut(slab))
-            .enumerate()
-            .map(|(i, (lo, views))| {
-                let mut updated = 0usize;
-                for j in 0..ny {
-                    let c0 = spec.center(i, j, 0);
-                    let p0 = camera_from_odom * Point3::new(c0[0], c0[1], c0[2]);
-                    let row_lo = &mut lo[j * nz..(j + 1) * nz];
-                    let row_views = &mut views[j * nz..(j + 1) * nz];
-                    for k in 0..nz {
-                        let p = p0 + step_k * k as f64;
-                        if p.z <= 1e-9 {
-                            continue;
-                        }
-                        let u = cam.fx * p.x / p.z + cam.cx;
-                        let v = cam.fy * p.y / p.z + cam.cy;
-                        // Negated comparisons also reject NaN.
-                        if !(u >= 0.0 && u < u_max && v >= 0.0 && v < v_max) {
-                            continue;
-                        }
-                        let c = (u / tile) as usize;
-                        let r = (v / tile) as usize;
-                        let mut l = row_lo[k] + delta[r * cols + c];
-                        if let Some((a, b)) = clamp {
-                            l = l.clamp(a, b);
-                        }
-                        row_lo[k] = l;
-                        row_views[k] = row_views[k].saturating_add(1);
-                        updated += 1;
-                    }
+        project(
+            &self.spec,
+            &mut self.log_odds,
+            &mut self.views,
+            camera_from_odom,
+            camera,
+            ev,
+            |l, d| {
+                let mut v = *l + d;
+                if let Some((a, b)) = clamp {
+                    v = v.clamp(a, b);
                 }
-                updated
-            })
-            .sum()
+                *l = v;
+            },
+        )
+    }
+
+    /// One frame's evidence without applying it: `out[cell]` = the tile's delta for cells in
+    /// the frame's pyramids, 0 elsewhere. Counts the view in `views` like [`Grid::integrate`].
+    pub fn frame_evidence(
+        &mut self,
+        camera_from_odom: &Iso3,
+        camera: &Camera,
+        ev: &TileEvidence,
+        out: &mut Vec<f32>,
+    ) -> usize {
+        out.clear();
+        out.resize(self.log_odds.len(), 0.0);
+        project(
+            &self.spec,
+            out,
+            &mut self.views,
+            camera_from_odom,
+            camera,
+            ev,
+            |o, d| *o = d,
+        )
+    }
+
+    /// Adds per-cell evidence (log likelihood ratios), then applies the clamp if any.
+    pub fn add_evidence(&mut self, evidence: &[f32]) {
+        let clamp = self.clamp;
+        self.log_odds
+            .par_iter_mut()
+            .zip(evidence.par_iter())
+            .for_each(|(l, &e)| {
+                if e != 0.0 {
+                    let mut v = *l + e;
+                    if let Some((a, b)) = clamp {
+                        v = v.clamp(a, b);
+                    }
+                    *l = v;
+                }
+            });
     }
 
     /// SHA-256 of the log-odds bytes (little-endian f32, index order), hex.
@@ -274,6 +289,65 @@ impl Grid {
         }
         h.finalize().iter().map(|b| format!("{b:02x}")).collect()
     }
+}
+
+/// Calls `apply(values[cell], delta)` for every cell whose centre lies in front of the camera
+/// and projects into a tile, and counts the view; returns the number of such cells.
+fn project(
+    spec: &GridSpec,
+    values: &mut [f32],
+    views: &mut [u16],
+    camera_from_odom: &Iso3,
+    camera: &Camera,
+    ev: &TileEvidence,
+    apply: impl Fn(&mut f32, f32) + Sync,
+) -> usize {
+    let spec = *spec;
+    let [_, ny, nz] = spec.dims;
+    let slab = ny * nz;
+    if slab == 0 {
+        return 0;
+    }
+    let rot = camera_from_odom.rotation.to_rotation_matrix();
+    let step_k: Vector3<f64> = rot * Vector3::new(0.0, 0.0, spec.voxel_size_m);
+    let tile = f64::from(ev.tile_px);
+    let u_max = ev.cols as f64 * tile;
+    let v_max = ev.rows as f64 * tile;
+    let cam = *camera;
+    let delta = &ev.delta;
+    let cols = ev.cols;
+    values
+        .par_chunks_mut(slab)
+        .zip(views.par_chunks_mut(slab))
+        .enumerate()
+        .map(|(i, (lo, views))| {
+            let mut updated = 0usize;
+            for j in 0..ny {
+                let c0 = spec.center(i, j, 0);
+                let p0 = camera_from_odom * Point3::new(c0[0], c0[1], c0[2]);
+                let row_lo = &mut lo[j * nz..(j + 1) * nz];
+                let row_views = &mut views[j * nz..(j + 1) * nz];
+                for k in 0..nz {
+                    let p = p0 + step_k * k as f64;
+                    if p.z <= 1e-9 {
+                        continue;
+                    }
+                    let u = cam.fx * p.x / p.z + cam.cx;
+                    let v = cam.fy * p.y / p.z + cam.cy;
+                    // Negated comparisons also reject NaN.
+                    if !(u >= 0.0 && u < u_max && v >= 0.0 && v < v_max) {
+                        continue;
+                    }
+                    let c = (u / tile) as usize;
+                    let r = (v / tile) as usize;
+                    apply(&mut row_lo[k], delta[r * cols + c]);
+                    row_views[k] = row_views[k].saturating_add(1);
+                    updated += 1;
+                }
+            }
+            updated
+        })
+        .sum()
 }
 
 #[cfg(test)]
@@ -296,7 +370,7 @@ mod tests {
         match e {
             GridError::TooLarge { nx, needed_mib, .. } => {
                 assert_eq!(nx, 10_000);
-                assert_eq!(needed_mib, 10_000u64.pow(3) * 14 / (1 << 20) + 1);
+                assert_eq!(needed_mib, 10_000u64.pow(3) * 26 / (1 << 20) + 1);
             }
             other => panic!("{other:?}"),
         }
@@ -332,7 +406,7 @@ mod tests {
         assert!(n > 0);
         // logit(0.9) - logit(2^-7) = 2.1972246 + 4.8441871, with 0.9 as the f32 the tree returns.
         let expected = (logit(f64::from(0.9f32)) - logit(prior)) as f32;
-        assert!((expected - 7.0414117).abs() < 1e-5, "{expected}");
+        assert!((expected - 7.041_412).abs() < 1e-5, "{expected}");
         let base = logit(prior) as f32;
         let mut changed = 0;
         for i in 0..g.spec.dims[0] {
@@ -360,7 +434,11 @@ mod tests {
         // v = 16*(-0.25)/1.05+8 = 4.19: in tile (0, 1).
         let idx = g.spec.index(10, 2, 7);
         let c = g.spec.center(10, 2, 7);
-        assert!((c[0] - 1.05).abs() < 1e-12 && (c[1] + 0.25).abs() < 1e-12 && (c[2] - 0.75).abs() < 1e-12);
+        assert!(
+            (c[0] - 1.05).abs() < 1e-12
+                && (c[1] + 0.25).abs() < 1e-12
+                && (c[2] - 0.75).abs() < 1e-12
+        );
         assert_eq!(g.log_odds[idx], base + expected);
         assert_eq!(g.views[idx], 1);
         // A cell behind the camera is untouched.
@@ -403,7 +481,11 @@ mod tests {
         let hit = g.prior_log_odds() + once + once;
         let t = g.spec.index(24, 22, 10);
         let c = g.spec.center(24, 22, 10);
-        assert!((c[0] - 0.225).abs() < 1e-12 && (c[1] - 0.125).abs() < 1e-12 && (c[2] - 0.525).abs() < 1e-12);
+        assert!(
+            (c[0] - 0.225).abs() < 1e-12
+                && (c[1] - 0.125).abs() < 1e-12
+                && (c[2] - 0.525).abs() < 1e-12
+        );
         assert_eq!(g.log_odds[t], hit);
         let both: Vec<[f64; 3]> = (0..g.spec.cells())
             .filter(|&i| g.log_odds[i] == hit)
@@ -423,7 +505,10 @@ mod tests {
     #[test]
     fn thread_count_does_not_change_the_result() {
         let run = |threads| {
-            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
             pool.install(|| {
                 let mut g = small_grid();
                 let cam = Camera::with_hfov(64, 48, 1.0);

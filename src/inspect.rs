@@ -148,9 +148,12 @@ pub fn summarize_reader(reader: &SessionReader) -> Result<Summary, SessionError>
                 }
             }
             SessionMsg::Odom(o) => odom_stamps.push(o.header.stamp_ns),
-            SessionMsg::Label(l) => {
-                labels.push((l.header.stamp_ns, m.log_time_ns, !l.regions.is_empty(), l.object))
-            }
+            SessionMsg::Label(l) => labels.push((
+                l.header.stamp_ns,
+                m.log_time_ns,
+                !l.regions.is_empty(),
+                l.object,
+            )),
             SessionMsg::GroundTruthObjects(g) => {
                 gt_present = true;
                 for o in g.object {
@@ -227,11 +230,8 @@ pub fn summarize_reader(reader: &SessionReader) -> Result<Summary, SessionError>
         ));
     }
 
-    let mut objects_labelled: Vec<String> = labels
-        .iter()
-        .filter(|l| l.2)
-        .map(|l| l.3.clone())
-        .collect();
+    let mut objects_labelled: Vec<String> =
+        labels.iter().filter(|l| l.2).map(|l| l.3.clone()).collect();
     objects_labelled.sort();
     objects_labelled.dedup();
 
@@ -284,7 +284,11 @@ impl Summary {
         let _ = writeln!(
             s,
             "profile:    {}    library: {}",
-            if self.profile.is_empty() { "(none)" } else { &self.profile },
+            if self.profile.is_empty() {
+                "(none)"
+            } else {
+                &self.profile
+            },
             self.library
         );
         let _ = writeln!(
@@ -297,7 +301,12 @@ impl Summary {
         );
         let _ = writeln!(s, "topics:");
         let w = self.topics.iter().map(|t| t.topic.len()).max().unwrap_or(5);
-        let tw = self.topics.iter().map(|t| t.type_name.len()).max().unwrap_or(4);
+        let tw = self
+            .topics
+            .iter()
+            .map(|t| t.type_name.len())
+            .max()
+            .unwrap_or(4);
         for t in &self.topics {
             let _ = writeln!(
                 s,
@@ -306,7 +315,10 @@ impl Summary {
                 t.type_name,
                 t.count,
                 t.message_encoding,
-                t.role.as_ref().map(|r| format!("  [{r}]")).unwrap_or_default(),
+                t.role
+                    .as_ref()
+                    .map(|r| format!("  [{r}]"))
+                    .unwrap_or_default(),
             );
         }
         let _ = writeln!(s, "frames:     {}", self.frames);
@@ -345,7 +357,11 @@ impl Summary {
             }
         );
         if !self.missing_topics.is_empty() {
-            let _ = writeln!(s, "missing session topics: {}", self.missing_topics.join(", "));
+            let _ = writeln!(
+                s,
+                "missing session topics: {}",
+                self.missing_topics.join(", ")
+            );
         }
         for w in &self.warnings {
             let _ = writeln!(s, "warning: {w}");

@@ -12,7 +12,9 @@ use rayon::prelude::*;
 use crate::grid::{Grid, logit, sigmoid};
 
 /// What the blur averages.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize, clap::ValueEnum)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize, clap::ValueEnum,
+)]
 #[serde(rename_all = "kebab-case")]
 pub enum BlurMode {
     /// The paper: convolve probabilities. Caps accumulated evidence: a cell at log-odds 50
@@ -20,6 +22,10 @@ pub enum BlurMode {
     Probability,
     /// Convolve log-odds: keeps the weight of evidence, so earlier views are not forgotten.
     LogOdds,
+    /// Leave the belief alone and spread each new frame's evidence over that frame's pose
+    /// uncertainty since the first frame (which anchors the frame of reference), averaging
+    /// likelihood ratios.
+    Observation,
 }
 
 /// Samples cover +-4 sigma; beyond that a Gaussian weighs under 3.4e-4 of its peak.
@@ -75,55 +81,28 @@ fn gaussian_weights(n: usize, spacing: f64, sigma: f64) -> Vec<f64> {
     w.into_iter().map(|x| x / sum).collect()
 }
 
-/// Scratch space reused across blurs, so a replay allocates it once.
-#[derive(Debug, Default)]
-pub struct Blurrer {
-    src: Vec<f64>,
-}
+/// The blur's kernels on a plain buffer in grid order: `src` -> `dst`, the world outside
+/// the grid at `outside`. Each returns false, leaving `dst` untouched, when the blur is the
+/// identity (sigma 0 or below a sample).
+pub mod kernel {
+    use super::*;
+    use crate::grid::GridSpec;
 
-impl Blurrer {
-    /// Loads the grid into the blur domain; returns the value of the world outside the grid.
-    fn load(&mut self, grid: &Grid, mode: BlurMode) -> f64 {
-        self.src.resize(grid.log_odds.len(), 0.0);
-        let src = &mut self.src;
-        match mode {
-            BlurMode::LogOdds => {
-                src.par_iter_mut()
-                    .zip(grid.log_odds.par_iter())
-                    .for_each(|(s, &l)| *s = f64::from(l));
-                logit(grid.prior)
-            }
-            BlurMode::Probability => {
-                src.par_iter_mut()
-                    .zip(grid.log_odds.par_iter())
-                    .for_each(|(s, &l)| *s = sigmoid(f64::from(l)));
-                grid.prior
-            }
-        }
-    }
-
-    /// Writes a blurred value back as log-odds.
-    #[inline]
-    fn store(v: f64, mode: BlurMode) -> f32 {
-        match mode {
-            BlurMode::LogOdds => v as f32,
-            // ln(p) - ln(1 - p), finite for p in (0, 1); averages of f64 probabilities never
-            // leave [min prob, 1 - 2^-53], so the log-odds stay within about +-37 here.
-            BlurMode::Probability => {
-                let p = v.clamp(f64::MIN_POSITIVE, 1.0 - f64::EPSILON / 2.0);
-                (p.ln() - (-p).ln_1p()) as f32
-            }
-        }
-    }
-
-    /// Blurs along the unit direction `dir_xy` (odom x, y) with standard deviation `sigma_m`.
-    pub fn translate(&mut self, grid: &mut Grid, dir_xy: [f64; 2], sigma_m: f64, mode: BlurMode) {
+    /// Along the unit direction `dir_xy` with standard deviation `sigma_m`.
+    pub fn translate(
+        spec: &GridSpec,
+        src: &[f64],
+        dst: &mut [f64],
+        dir_xy: [f64; 2],
+        sigma_m: f64,
+        outside: f64,
+    ) -> bool {
         let norm = dir_xy[0].hypot(dir_xy[1]);
         if !(sigma_m > 0.0 && sigma_m.is_finite() && norm > 1e-12) {
-            return;
+            return false;
         }
         let (dx, dy) = (dir_xy[0] / norm, dir_xy[1] / norm);
-        let voxel = grid.spec.voxel_size_m;
+        let voxel = spec.voxel_size_m;
         // Step one whole cell along the major axis; the minor axis moves by a fraction.
         let major_x = dx.abs() >= dy.abs();
         let (major, minor) = if major_x { (dx, dy) } else { (dy, dx) };
@@ -131,24 +110,21 @@ impl Blurrer {
         let slope = minor / major;
         let n = ((SPAN_SIGMAS * sigma_m / spacing_m).ceil() as usize).min(MAX_SAMPLES_PER_SIDE);
         if n == 0 {
-            return;
+            return false;
         }
         let weights = gaussian_weights(n, spacing_m, sigma_m);
-        let outside = self.load(grid, mode);
-        let [nx, ny, nz] = grid.spec.dims;
-        let src = &self.src;
+        let [nx, ny, nz] = spec.dims;
         let col = |i: i64, j: i64| -> Option<&[f64]> {
             (i >= 0 && j >= 0 && (i as usize) < nx && (j as usize) < ny).then(|| {
                 let start = (i as usize * ny + j as usize) * nz;
                 &src[start..start + nz]
             })
         };
-        grid.log_odds
-            .par_chunks_mut(ny * nz)
+        dst.par_chunks_mut(ny * nz)
             .enumerate()
             .for_each(|(i, slab)| {
-                let mut acc = vec![0.0f64; nz];
                 for j in 0..ny {
+                    let acc = &mut slab[j * nz..(j + 1) * nz];
                     acc.iter_mut().for_each(|a| *a = 0.0);
                     for (s, &w) in weights.iter().enumerate() {
                         let k = s as f64 - n as f64;
@@ -160,7 +136,11 @@ impl Blurrer {
                             if wm == 0.0 {
                                 continue;
                             }
-                            let (ci, cj) = if major_x { (major_pos, m) } else { (m, major_pos) };
+                            let (ci, cj) = if major_x {
+                                (major_pos, m)
+                            } else {
+                                (m, major_pos)
+                            };
                             let ww = w * wm;
                             match col(ci, cj) {
                                 Some(c) => acc.iter_mut().zip(c).for_each(|(a, v)| *a += ww * v),
@@ -168,41 +148,40 @@ impl Blurrer {
                             }
                         }
                     }
-                    for (dst, &a) in slab[j * nz..(j + 1) * nz].iter_mut().zip(&acc) {
-                        *dst = Self::store(a, mode);
-                    }
                 }
             });
+        true
     }
 
-    /// Blurs in angle about the vertical axis through `center_xy` with standard deviation
+    /// In angle about the vertical axis through `center_xy` with standard deviation
     /// `sigma_rad`.
-    pub fn rotate(&mut self, grid: &mut Grid, center_xy: [f64; 2], sigma_rad: f64, mode: BlurMode) {
+    pub fn rotate(
+        spec: &GridSpec,
+        src: &[f64],
+        dst: &mut [f64],
+        center_xy: [f64; 2],
+        sigma_rad: f64,
+        outside: f64,
+    ) -> bool {
         if !(sigma_rad > 0.0 && sigma_rad.is_finite() && center_xy.iter().all(|c| c.is_finite())) {
-            return;
+            return false;
         }
-        let spec = grid.spec;
         let voxel = spec.voxel_size_m;
-        let outside = self.load(grid, mode);
         let [nx, ny, nz] = spec.dims;
-        let src = &self.src;
-        grid.log_odds
-            .par_chunks_mut(ny * nz)
+        dst.par_chunks_mut(ny * nz)
             .enumerate()
             .for_each(|(i, slab)| {
-                let mut acc = vec![0.0f64; nz];
                 for j in 0..ny {
+                    let acc = &mut slab[j * nz..(j + 1) * nz];
                     let c = spec.center(i, j, 0);
                     let (rx, ry) = (c[0] - center_xy[0], c[1] - center_xy[1]);
                     let radius = rx.hypot(ry);
                     // Samples a cell apart along the arc at this radius.
                     let n = ((SPAN_SIGMAS * sigma_rad * radius / voxel).ceil() as usize)
                         .min(MAX_SAMPLES_PER_SIDE);
+                    let start = (i * ny + j) * nz;
                     if n == 0 {
-                        let start = (i * ny + j) * nz;
-                        for (dst, &v) in slab[j * nz..(j + 1) * nz].iter_mut().zip(&src[start..start + nz]) {
-                            *dst = Self::store(v, mode);
-                        }
+                        acc.copy_from_slice(&src[start..start + nz]);
                         continue;
                     }
                     let spacing = SPAN_SIGMAS * sigma_rad / n as f64;
@@ -225,9 +204,9 @@ impl Blurrer {
                                     continue;
                                 }
                                 if ci >= 0 && cj >= 0 && (ci as usize) < nx && (cj as usize) < ny {
-                                    let start = (ci as usize * ny + cj as usize) * nz;
+                                    let st = (ci as usize * ny + cj as usize) * nz;
                                     acc.iter_mut()
-                                        .zip(&src[start..start + nz])
+                                        .zip(&src[st..st + nz])
                                         .for_each(|(a, v)| *a += ww * v);
                                 } else {
                                     acc.iter_mut().for_each(|a| *a += ww * outside);
@@ -235,11 +214,128 @@ impl Blurrer {
                             }
                         }
                     }
-                    for (dst, &a) in slab[j * nz..(j + 1) * nz].iter_mut().zip(&acc) {
-                        *dst = Self::store(a, mode);
+                }
+            });
+        true
+    }
+}
+
+/// Scratch space reused across blurs, so a replay allocates it once.
+#[derive(Debug, Default)]
+pub struct Blurrer {
+    src: Vec<f64>,
+    dst: Vec<f64>,
+}
+
+impl Blurrer {
+    /// Loads the grid into the blur domain; returns the value of the world outside the grid.
+    fn load(&mut self, grid: &Grid, mode: BlurMode) -> f64 {
+        self.src.resize(grid.log_odds.len(), 0.0);
+        self.dst.resize(grid.log_odds.len(), 0.0);
+        let src = &mut self.src;
+        match mode {
+            BlurMode::Probability => {
+                src.par_iter_mut()
+                    .zip(grid.log_odds.par_iter())
+                    .for_each(|(s, &l)| *s = sigmoid(f64::from(l)));
+                grid.prior
+            }
+            BlurMode::LogOdds | BlurMode::Observation => {
+                src.par_iter_mut()
+                    .zip(grid.log_odds.par_iter())
+                    .for_each(|(s, &l)| *s = f64::from(l));
+                logit(grid.prior)
+            }
+        }
+    }
+
+    /// Writes the blurred buffer back as log-odds.
+    fn store(&self, grid: &mut Grid, mode: BlurMode) {
+        grid.log_odds
+            .par_iter_mut()
+            .zip(self.dst.par_iter())
+            .for_each(|(l, &v)| {
+                *l = match mode {
+                    BlurMode::LogOdds | BlurMode::Observation => v as f32,
+                    // ln(p) - ln(1 - p), finite for p in (0, 1); averages of f64 probabilities
+                    // never leave [min prob, 1 - 2^-53], so the log-odds stay within +-37.
+                    BlurMode::Probability => {
+                        let p = v.clamp(f64::MIN_POSITIVE, 1.0 - f64::EPSILON / 2.0);
+                        (p.ln() - (-p).ln_1p()) as f32
                     }
                 }
             });
+    }
+
+    /// Blurs the belief along the unit direction `dir_xy` (odom x, y) with standard
+    /// deviation `sigma_m`.
+    pub fn translate(&mut self, grid: &mut Grid, dir_xy: [f64; 2], sigma_m: f64, mode: BlurMode) {
+        let outside = self.load(grid, mode);
+        if kernel::translate(
+            &grid.spec,
+            &self.src,
+            &mut self.dst,
+            dir_xy,
+            sigma_m,
+            outside,
+        ) {
+            self.store(grid, mode);
+        }
+    }
+
+    /// Blurs the belief in angle about the vertical axis through `center_xy` with standard
+    /// deviation `sigma_rad`.
+    pub fn rotate(&mut self, grid: &mut Grid, center_xy: [f64; 2], sigma_rad: f64, mode: BlurMode) {
+        let outside = self.load(grid, mode);
+        if kernel::rotate(
+            &grid.spec,
+            &self.src,
+            &mut self.dst,
+            center_xy,
+            sigma_rad,
+            outside,
+        ) {
+            self.store(grid, mode);
+        }
+    }
+
+    /// Spreads one frame's evidence (log likelihood ratios per cell, 0 outside the view) over
+    /// the pose uncertainty of that frame: the likelihood ratio of a cell is the expectation
+    /// of the ratio over the pose distribution, so it is the ratio, not its logarithm, that is
+    /// averaged. Heading uncertainty `sigma_rad` rotates about `center_xy` (the robot);
+    /// position uncertainty `sigma_m` spreads isotropically in x and y.
+    pub fn spread_evidence(
+        &mut self,
+        spec: &crate::grid::GridSpec,
+        evidence: &mut [f32],
+        center_xy: [f64; 2],
+        sigma_rad: f64,
+        sigma_m: f64,
+    ) {
+        self.src.resize(evidence.len(), 0.0);
+        self.dst.resize(evidence.len(), 0.0);
+        self.src
+            .par_iter_mut()
+            .zip(evidence.par_iter())
+            .for_each(|(s, &e)| *s = f64::from(e).exp());
+        let mut changed = false;
+        for pass in 0..3 {
+            let done = match pass {
+                0 => kernel::rotate(spec, &self.src, &mut self.dst, center_xy, sigma_rad, 1.0),
+                1 => kernel::translate(spec, &self.src, &mut self.dst, [1.0, 0.0], sigma_m, 1.0),
+                _ => kernel::translate(spec, &self.src, &mut self.dst, [0.0, 1.0], sigma_m, 1.0),
+            };
+            if done {
+                std::mem::swap(&mut self.src, &mut self.dst);
+                changed = true;
+            }
+        }
+        if changed {
+            evidence
+                .par_iter_mut()
+                .zip(self.src.par_iter())
+                .for_each(|(e, &r)| *e = r.ln() as f32);
+        }
     }
 }
 
@@ -345,7 +441,11 @@ mod tests {
         assert!((w0 - 0.398943).abs() < 1e-6, "{w0}");
         let p = w0 + (1.0 - w0) * 0.01;
         let expect = logit(p);
-        assert!((f64::from(g.log_odds[hot]) - expect).abs() < 1e-4, "{} vs {expect}", g.log_odds[hot]);
+        assert!(
+            (f64::from(g.log_odds[hot]) - expect).abs() < 1e-4,
+            "{} vs {expect}",
+            g.log_odds[hot]
+        );
         assert!(g.log_odds[hot] < 1.0);
         let expect_l = w0 * 50.0 + (1.0 - w0) * f64::from(gl.prior_log_odds());
         assert!((f64::from(gl.log_odds[hot]) - expect_l).abs() < 1e-3);
@@ -353,7 +453,11 @@ mod tests {
 
     #[test]
     fn segments_cut_commands_to_the_interval() {
-        let cmds = [(0, 0.0, 0.5), (2_000_000_000, 0.3, 0.0), (5_000_000_000, 0.0, 0.0)];
+        let cmds = [
+            (0, 0.0, 0.5),
+            (2_000_000_000, 0.3, 0.0),
+            (5_000_000_000, 0.0, 0.0),
+        ];
         let s = segments_between(&cmds, 1_000_000_000, 4_000_000_000);
         assert_eq!(s.len(), 2);
         assert_eq!(s[0].duration_s(), 1.0);
@@ -366,7 +470,10 @@ mod tests {
     #[test]
     fn blur_is_thread_count_independent() {
         let run = |threads| {
-            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
             pool.install(|| {
                 let mut g = grid();
                 for (i, l) in g.log_odds.iter_mut().enumerate() {

@@ -21,7 +21,10 @@ pub struct Header {
 pub fn ns_to_time(ns: i64) -> (i32, u32) {
     let sec = ns.div_euclid(1_000_000_000);
     let nsec = ns.rem_euclid(1_000_000_000);
-    (sec.clamp(i32::MIN as i64, i32::MAX as i64) as i32, nsec as u32)
+    (
+        sec.clamp(i32::MIN as i64, i32::MAX as i64) as i32,
+        nsec as u32,
+    )
 }
 
 pub fn time_to_ns(sec: i32, nanosec: u32) -> i64 {
@@ -230,7 +233,15 @@ pub struct CameraInfo {
 
 impl CameraInfo {
     /// A distortion-free pinhole camera.
-    pub fn pinhole(header: Header, width: u32, height: u32, fx: f64, fy: f64, cx: f64, cy: f64) -> Self {
+    pub fn pinhole(
+        header: Header,
+        width: u32,
+        height: u32,
+        fx: f64,
+        fy: f64,
+        cx: f64,
+        cy: f64,
+    ) -> Self {
         Self {
             header,
             height,
@@ -481,13 +492,22 @@ const DEFINITIONS: &[(&str, &str)] = &[
         "std_msgs/msg/Header",
         "builtin_interfaces/Time stamp\nstring frame_id\n",
     ),
-    ("geometry_msgs/msg/Point", "float64 x\nfloat64 y\nfloat64 z\n"),
-    ("geometry_msgs/msg/Vector3", "float64 x\nfloat64 y\nfloat64 z\n"),
+    (
+        "geometry_msgs/msg/Point",
+        "float64 x\nfloat64 y\nfloat64 z\n",
+    ),
+    (
+        "geometry_msgs/msg/Vector3",
+        "float64 x\nfloat64 y\nfloat64 z\n",
+    ),
     (
         "geometry_msgs/msg/Quaternion",
         "float64 x 0\nfloat64 y 0\nfloat64 z 0\nfloat64 w 1\n",
     ),
-    ("geometry_msgs/msg/Pose", "Point position\nQuaternion orientation\n"),
+    (
+        "geometry_msgs/msg/Pose",
+        "Point position\nQuaternion orientation\n",
+    ),
     (
         "geometry_msgs/msg/PoseWithCovariance",
         "Pose pose\nfloat64[36] covariance\n",
@@ -496,7 +516,10 @@ const DEFINITIONS: &[(&str, &str)] = &[
         "geometry_msgs/msg/PoseStamped",
         "std_msgs/Header header\nPose pose\n",
     ),
-    ("geometry_msgs/msg/Twist", "Vector3 linear\nVector3 angular\n"),
+    (
+        "geometry_msgs/msg/Twist",
+        "Vector3 linear\nVector3 angular\n",
+    ),
     (
         "geometry_msgs/msg/TwistWithCovariance",
         "Twist twist\nfloat64[36] covariance\n",
@@ -618,7 +641,11 @@ mod tests {
             "geometry_msgs/Twist",
             "geometry_msgs/Vector3",
         ] {
-            assert_eq!(s.matches(&format!("MSG: {dep}\n")).count(), 1, "{dep} in\n{s}");
+            assert_eq!(
+                s.matches(&format!("MSG: {dep}\n")).count(),
+                1,
+                "{dep} in\n{s}"
+            );
         }
         assert_eq!(s.matches(&"=".repeat(80)).count(), 9);
     }

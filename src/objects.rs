@@ -2,10 +2,13 @@
 //!
 //! A fixed posterior threshold (0.5) fails: a cell on one positive pyramid that no other view
 //! contradicts already sits far above 0.5, so whole pyramids survive as blobs far from the
-//! object. The rule here asks for agreement between views instead: a cell is a candidate only
-//! if at least `min_views` frames saw it, and components grow by hysteresis from seeds whose
-//! evidence (log-odds above the prior) is at least `seed_evidence` through cells with at least
-//! `grow_evidence`. The defaults were chosen by measurement on the shipped tours (see
+//! object. What sets the object apart is that every view that saw it agrees: its evidence
+//! (log-odds above the prior) is near the sum of all its views' positive evidence, while a
+//! cell where only some pyramids cross collects much less. So the rule is relative to the
+//! grid's strongest evidence: components grow by hysteresis from seeds at `seed_fraction` of
+//! the peak through cells at `grow_fraction` of it, among cells seen by at least `min_views`
+//! frames. Being relative, it does not depend on the classifier's calibration or on the
+//! number of frames. The defaults were chosen by measurement on the shipped tours (see
 //! docs/fuser.md).
 //!
 //! Invariants: pure function of the grid; components are found in index order, so the output
@@ -19,10 +22,11 @@ use crate::grid::{Grid, sigmoid};
 pub struct ObjectParams {
     /// Frames that must have seen a cell before it can belong to an object.
     pub min_views: u16,
-    /// Evidence (log-odds minus prior log-odds) a component must reach somewhere.
-    pub seed_evidence: f32,
-    /// Evidence every cell of a component must have.
-    pub grow_evidence: f32,
+    /// Evidence (log-odds above the prior), as a fraction of the grid's highest, that a
+    /// component must reach somewhere.
+    pub seed_fraction: f32,
+    /// Evidence, as a fraction of the grid's highest, every cell of a component must have.
+    pub grow_fraction: f32,
     /// Components with fewer cells are dropped as noise.
     pub min_cells: usize,
 }
@@ -31,8 +35,8 @@ impl Default for ObjectParams {
     fn default() -> Self {
         Self {
             min_views: 3,
-            seed_evidence: 12.0,
-            grow_evidence: 6.0,
+            seed_fraction: 0.75,
+            grow_fraction: 0.5,
             min_cells: 8,
         }
     }
@@ -72,14 +76,22 @@ pub fn find_objects_with_cells(grid: &Grid, params: &ObjectParams) -> Vec<(Objec
     let n = spec.cells();
     let mut state = vec![NONE; n];
     let mut seeds = Vec::new();
-    for idx in 0..n {
+    let max_e = (0..n)
+        .filter(|&i| grid.views[i] >= params.min_views)
+        .map(|i| grid.log_odds[i] - prior)
+        .fold(0.0f32, f32::max);
+    if max_e <= 0.0 {
+        return Vec::new();
+    }
+    let (seed_e, grow_e) = (params.seed_fraction * max_e, params.grow_fraction * max_e);
+    for (idx, st) in state.iter_mut().enumerate() {
         if grid.views[idx] < params.min_views {
             continue;
         }
         let e = grid.log_odds[idx] - prior;
-        if e >= params.grow_evidence {
-            state[idx] = GROW;
-            if e >= params.seed_evidence {
+        if e >= grow_e {
+            *st = GROW;
+            if e >= seed_e {
                 seeds.push(idx);
             }
         }
@@ -102,7 +114,13 @@ pub fn find_objects_with_cells(grid: &Grid, params: &ObjectParams) -> Vec<(Objec
                 for dj in -1i64..=1 {
                     for dk in -1i64..=1 {
                         let (a, b, c) = (i as i64 + di, j as i64 + dj, k as i64 + dk);
-                        if a < 0 || b < 0 || c < 0 || a >= nx as i64 || b >= ny as i64 || c >= nz as i64 {
+                        if a < 0
+                            || b < 0
+                            || c < 0
+                            || a >= nx as i64
+                            || b >= ny as i64
+                            || c >= nz as i64
+                        {
                             continue;
                         }
                         let nb = spec.index(a as usize, b as usize, c as usize);
@@ -204,9 +222,9 @@ mod tests {
         let g = grid_with(&[
             // Strong but seen by one view only: one pyramid.
             ([2, 2, 2], [5, 5, 5], 20.0, 1),
-            // Seen by many but below the seed evidence everywhere.
+            // Seen by many but below the grow fraction (8 / 20) everywhere.
             ([10, 10, 10], [14, 14, 14], 8.0, 6),
-            // Strong, seen, but too small.
+            // The peak that sets the scale, seen often enough but too small to count.
             ([17, 17, 17], [18, 19, 19], 20.0, 6),
         ]);
         assert!(find_objects(&g, &ObjectParams::default()).is_empty());
@@ -216,7 +234,10 @@ mod tests {
     fn hysteresis_grows_from_the_seed_through_weaker_cells() {
         let g = grid_with(&[
             ([2, 2, 2], [4, 4, 4], 20.0, 5),
-            ([4, 2, 2], [8, 4, 4], 7.0, 5),
+            // 12 / 20 = 0.6 of the peak: above the grow fraction, below the seed fraction.
+            ([4, 2, 2], [8, 4, 4], 12.0, 5),
+            // Same strength but not connected: no seed of its own, so not an object.
+            ([12, 12, 12], [16, 16, 16], 12.0, 5),
         ]);
         let objs = find_objects(&g, &ObjectParams::default());
         assert_eq!(objs.len(), 1);

@@ -6,7 +6,10 @@ use std::path::{Path, PathBuf};
 
 /// `out.json` -> `out.json.partial`, in the same directory (so the rename is atomic).
 pub fn partial_path(path: &Path) -> PathBuf {
-    let mut name = path.file_name().map(|n| n.to_os_string()).unwrap_or_default();
+    let mut name = path
+        .file_name()
+        .map(|n| n.to_os_string())
+        .unwrap_or_default();
     name.push(".partial");
     path.with_file_name(name)
 }

@@ -64,7 +64,9 @@ pub enum ReplayError {
     Invalid { at: At, what: String },
     #[error("grid: {0}")]
     Grid(#[from] GridError),
-    #[error("{path}: no frame could be fused ({frames} frame(s) in the session, none with a pose and camera)")]
+    #[error(
+        "{path}: no frame could be fused ({frames} frame(s) in the session, none with a pose and camera)"
+    )]
     NothingFused { path: String, frames: usize },
 }
 
@@ -84,6 +86,18 @@ pub struct FuseOptions {
     /// Optional clamp of cell probabilities after each update, e.g. (0.001, 0.999).
     pub clamp: Option<(f64, f64)>,
     pub objects: ObjectParams,
+    /// Where frame poses come from: /odom (the default, what a robot has) or the simulator's
+    /// /ground_truth/pose (to tell odometry error apart from classifier error).
+    pub poses: PoseSource,
+}
+
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize, clap::ValueEnum,
+)]
+#[serde(rename_all = "kebab-case")]
+pub enum PoseSource {
+    Odometry,
+    GroundTruth,
 }
 
 impl Default for FuseOptions {
@@ -97,6 +111,7 @@ impl Default for FuseOptions {
             blur: BlurMode::LogOdds,
             clamp: None,
             objects: ObjectParams::default(),
+            poses: PoseSource::Odometry,
         }
     }
 }
@@ -231,7 +246,8 @@ pub fn load_session(reader: &SessionReader) -> Result<SessionData, ReplayError> 
                     Some((c, _)) if *c != cam => {
                         return Err(ReplayError::Invalid {
                             at: at(),
-                            what: "CameraInfo changes during the session; objloc fuses one camera".into(),
+                            what: "CameraInfo changes during the session; objloc fuses one camera"
+                                .into(),
                         });
                     }
                     Some(_) => {}
@@ -354,7 +370,12 @@ pub trait Observer {
     fn on_start(&mut self, _data: &SessionData, _grid: &Grid) -> anyhow::Result<()> {
         Ok(())
     }
-    fn on_frame(&mut self, _data: &SessionData, _step: &FrameStep, _grid: &Grid) -> anyhow::Result<()> {
+    fn on_frame(
+        &mut self,
+        _data: &SessionData,
+        _step: &FrameStep,
+        _grid: &Grid,
+    ) -> anyhow::Result<()> {
         Ok(())
     }
 }
@@ -390,6 +411,11 @@ pub struct Fuser {
     pub grid: Grid,
     pub options: FuseOptions,
     blurrer: Blurrer,
+    /// Pose variance accumulated since the first frame (for [`BlurMode::Observation`]):
+    /// heading, rad^2, and position, m^2.
+    heading_var_rad2: f64,
+    position_var_m2: f64,
+    evidence: Vec<f32>,
 }
 
 impl Fuser {
@@ -405,12 +431,25 @@ impl Fuser {
             grid,
             options,
             blurrer: Blurrer::default(),
+            heading_var_rad2: 0.0,
+            position_var_m2: 0.0,
+            evidence: Vec::new(),
         })
     }
 
     /// Blurs the belief by one command segment; `odom_from_base` is the pose at its start.
     pub fn blur(&mut self, seg: &Segment, odom_from_base: &Iso3) {
         let t = seg.duration_s();
+        if self.options.blur == BlurMode::Observation {
+            // The belief stays; the uncertainty is carried to the next frame's evidence.
+            if seg.v_mps != 0.0 {
+                self.position_var_m2 += (self.options.sigma_v_mps * t).powi(2);
+            }
+            if seg.w_radps != 0.0 {
+                self.heading_var_rad2 += (self.options.sigma_w_radps * t).powi(2);
+            }
+            return;
+        }
         if seg.v_mps != 0.0 {
             let yaw = yaw_of(odom_from_base);
             self.blurrer.translate(
@@ -432,9 +471,38 @@ impl Fuser {
     }
 
     /// Integrates one frame's tile probabilities seen from `odom_from_camera`.
-    pub fn integrate(&mut self, odom_from_camera: &Iso3, camera: &Camera, probs: &TileProbs) -> usize {
-        let ev = TileEvidence::from_probabilities(probs.rows, probs.cols, probs.tile_px, &probs.p, self.grid.prior);
-        self.grid.integrate(&odom_from_camera.inverse(), camera, &ev)
+    /// `odom_from_base` is the robot's pose, the centre of heading uncertainty.
+    pub fn integrate(
+        &mut self,
+        odom_from_camera: &Iso3,
+        odom_from_base: &Iso3,
+        camera: &Camera,
+        probs: &TileProbs,
+    ) -> usize {
+        let ev = TileEvidence::from_probabilities(
+            probs.rows,
+            probs.cols,
+            probs.tile_px,
+            &probs.p,
+            self.grid.prior,
+        );
+        let camera_from_odom = odom_from_camera.inverse();
+        if self.options.blur != BlurMode::Observation {
+            return self.grid.integrate(&camera_from_odom, camera, &ev);
+        }
+        let n = self
+            .grid
+            .frame_evidence(&camera_from_odom, camera, &ev, &mut self.evidence);
+        let c = odom_from_base.translation.vector;
+        self.blurrer.spread_evidence(
+            &self.grid.spec,
+            &mut self.evidence,
+            [c.x, c.y],
+            self.heading_var_rad2.sqrt(),
+            self.position_var_m2.sqrt(),
+        );
+        self.grid.add_evidence(&self.evidence);
+        n
     }
 }
 
@@ -445,27 +513,43 @@ pub fn replay(
     options: &FuseOptions,
     observers: &mut [&mut dyn Observer],
 ) -> Result<Outcome, ReplayError> {
-    let data = load_session(reader)?;
+    let mut data = load_session(reader)?;
+    if options.poses == PoseSource::GroundTruth {
+        if data.ground_truth_poses.is_empty() {
+            return Err(ReplayError::Invalid {
+                at: At {
+                    path: reader.path().to_owned(),
+                    topic: Some(reader.topics().ground_truth_pose.clone()),
+                    log_time_ns: None,
+                },
+                what: "--poses ground-truth asks for poses this session does not have".into(),
+            });
+        }
+        data.odom = data.ground_truth_poses.clone();
+    }
     let mut warnings = data.warnings.clone();
     let (lo, hi) = match options.bounds_m {
         Some(b) => b,
-        None => data.default_bounds().ok_or_else(|| ReplayError::NothingFused {
-            path: data.path.clone(),
-            frames: data.frames.len(),
-        })?,
+        None => data
+            .default_bounds()
+            .ok_or_else(|| ReplayError::NothingFused {
+                path: data.path.clone(),
+                frames: data.frames.len(),
+            })?,
     };
     let spec = GridSpec::from_bounds(lo, hi, options.voxel_size_m)?;
     let prior = options.prior.unwrap_or_else(|| classifier.base_rate());
     let mut fuser = Fuser::new(spec, prior, options.clone())?;
     for o in observers.iter_mut() {
-        o.on_start(&data, &fuser.grid).map_err(|e| ReplayError::Invalid {
-            at: At {
-                path: reader.path().to_owned(),
-                topic: None,
-                log_time_ns: None,
-            },
-            what: format!("observer failed: {e:#}"),
-        })?;
+        o.on_start(&data, &fuser.grid)
+            .map_err(|e| ReplayError::Invalid {
+                at: At {
+                    path: reader.path().to_owned(),
+                    topic: None,
+                    log_time_ns: None,
+                },
+                what: format!("observer failed: {e:#}"),
+            })?;
     }
     let mut last_stamp: Option<i64> = None;
     let mut per_frame = Vec::new();
@@ -481,11 +565,12 @@ pub fn replay(
             ));
             continue;
         };
-        if let Some(prev) = last_stamp {
-            if fr.stamp_ns < prev {
-                warnings.push(format!("{}: frame stamp goes backwards; frame skipped", at()));
-                continue;
-            }
+        if last_stamp.is_some_and(|prev| fr.stamp_ns < prev) {
+            warnings.push(format!(
+                "{}: frame stamp goes backwards; frame skipped",
+                at()
+            ));
+            continue;
         }
         let raw = &reader.raw_messages()[fr.raw_index];
         let frame = match reader.decode(raw)?.map(|m| m.msg) {
@@ -516,7 +601,8 @@ pub fn replay(
         }
         let probs = classifier.classify(&image);
         let odom_from_camera = odom_from_base * data.base_from_camera;
-        let cells_updated = fuser.integrate(&odom_from_camera, &data.camera, &probs);
+        let cells_updated =
+            fuser.integrate(&odom_from_camera, &odom_from_base, &data.camera, &probs);
         last_stamp = Some(fr.stamp_ns);
         let step = FrameStep {
             index: fused,
@@ -529,13 +615,19 @@ pub fn replay(
             cells_updated,
         };
         for o in observers.iter_mut() {
-            o.on_frame(&data, &step, &fuser.grid).map_err(|e| ReplayError::Invalid {
-                at: at(),
-                what: format!("observer failed: {e:#}"),
-            })?;
+            o.on_frame(&data, &step, &fuser.grid)
+                .map_err(|e| ReplayError::Invalid {
+                    at: at(),
+                    what: format!("observer failed: {e:#}"),
+                })?;
         }
         let objects = find_objects(&fuser.grid, &options.objects);
-        let max_l = fuser.grid.log_odds.iter().copied().fold(f32::NEG_INFINITY, f32::max);
+        let max_l = fuser
+            .grid
+            .log_odds
+            .iter()
+            .copied()
+            .fold(f32::NEG_INFINITY, f32::max);
         let base = odom_from_base.translation.vector;
         per_frame.push(FrameSummary {
             index: fused,
@@ -556,7 +648,10 @@ pub fn replay(
         });
     }
     let with_cells = find_objects_with_cells(&fuser.grid, &options.objects);
-    let mut object_cells: Vec<usize> = with_cells.iter().flat_map(|(_, c)| c.iter().copied()).collect();
+    let mut object_cells: Vec<usize> = with_cells
+        .iter()
+        .flat_map(|(_, c)| c.iter().copied())
+        .collect();
     object_cells.sort_unstable();
     let objects = with_cells.into_iter().map(|(o, _)| o).collect();
     Ok(Outcome {

@@ -98,4 +98,3 @@ impl Report {
         serde_json::to_string_pretty(self).unwrap_or_default()
     }
 }
-

@@ -419,14 +419,6 @@ fn train_recording_has_the_tree_graph_and_frames() {
     );
 }
 
-#[test]
-#[ignore]
-fn scratch_write_rrd() {
-    let dir = Path::new("/tmp/vz");
-    let model = trained_model(dir);
-    fuse_to_rrd(&model, &dir.join("tour.rrd"));
-}
-
 /// Cost of streaming: replay of the chair tour with and without the Rerun observer
 /// (`cargo test --release --test viz timing -- --ignored --nocapture`).
 #[test]

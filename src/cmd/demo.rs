@@ -39,13 +39,18 @@ fn locate(p: &Path) -> PathBuf {
         return p.to_owned();
     }
     let in_tree = Path::new(env!("CARGO_MANIFEST_DIR")).join(p);
-    if in_tree.exists() { in_tree } else { p.to_owned() }
+    if in_tree.exists() {
+        in_tree
+    } else {
+        p.to_owned()
+    }
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     let train_path = locate(&args.train);
     let tour_path = locate(&args.tour);
-    std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("creating {}", args.out.display()))?;
     let topics = args.topics.topics()?;
 
     println!("== training on {}", train_path.display());
@@ -100,7 +105,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         let errs: Vec<String> = e
             .per_frame
             .iter()
-            .map(|f| f.mean_error_m.map(|x| format!("{x:.3}")).unwrap_or_else(|| "-".into()))
+            .map(|f| {
+                f.mean_error_m
+                    .map(|x| format!("{x:.3}"))
+                    .unwrap_or_else(|| "-".into())
+            })
             .collect();
         println!("error after each frame (m): {}", errs.join(" "));
     }

@@ -44,7 +44,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let truth = true_objects(&gt);
     let mut evals = Vec::new();
     for path in &args.reports {
-        let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+        let text =
+            std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
         let report: Report = serde_json::from_str(&text)
             .with_context(|| format!("{}: not an objloc fuse report", path.display()))?;
         evals.push(evaluate(&path.display().to_string(), &report, &truth));
@@ -57,7 +58,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         }
         if evals.len() > 1 {
             println!("comparison:");
-            println!("  {:<40} {:>8} {:>7} {:>9} {:>8}", "report", "matched", "missed", "spurious", "max err");
+            println!(
+                "  {:<40} {:>8} {:>7} {:>9} {:>8}",
+                "report", "matched", "missed", "spurious", "max err"
+            );
             for e in &evals {
                 println!(
                     "  {:<40} {:>8} {:>7} {:>9} {:>8}",
@@ -65,7 +69,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                     e.matches.len(),
                     e.missed.len(),
                     e.spurious.len(),
-                    e.max_error_m().map(|x| format!("{x:.3} m")).unwrap_or_else(|| "-".into())
+                    e.max_error_m()
+                        .map(|x| format!("{x:.3} m"))
+                        .unwrap_or_else(|| "-".into())
                 );
             }
         }
@@ -92,7 +98,10 @@ fn print_eval(e: &Evaluation) {
         println!("  missed: {name}");
     }
     for c in &e.spurious {
-        println!("  spurious object at ({:.3}, {:.3}, {:.3})", c[0], c[1], c[2]);
+        println!(
+            "  spurious object at ({:.3}, {:.3}, {:.3})",
+            c[0], c[1], c[2]
+        );
     }
     println!("  voxel IoU of the thresholded belief: {:.3}", e.voxel_iou);
     println!("  after each frame:");
@@ -102,7 +111,9 @@ fn print_eval(e: &Evaluation) {
             f.index,
             f.objects,
             f.matched,
-            f.mean_error_m.map(|x| format!("{x:.3} m")).unwrap_or_else(|| "-".into())
+            f.mean_error_m
+                .map(|x| format!("{x:.3} m"))
+                .unwrap_or_else(|| "-".into())
         );
     }
 }

@@ -10,7 +10,7 @@ use anyhow::Context;
 use objloc::model::Model;
 use objloc::motion::BlurMode;
 use objloc::objects::ObjectParams;
-use objloc::replay::{FuseOptions, Outcome, replay};
+use objloc::replay::{FuseOptions, Outcome, PoseSource, replay};
 use objloc::report::{Report, file_sha256};
 use objloc::session::SessionReader;
 
@@ -61,15 +61,20 @@ pub struct FuseArgs {
     /// Clamp cell probabilities to [LO, HI] after each update (off by default).
     #[arg(long, value_name = "LO,HI", value_parser = parse_pair)]
     pub clamp: Option<(f64, f64)>,
+    /// Frame poses from `odometry` (/odom) or `ground-truth` (/ground_truth/pose, simulated
+    /// sessions: separates odometry error from classifier error).
+    #[arg(long, value_enum, default_value_t = PoseSource::Odometry)]
+    pub poses: PoseSource,
     /// Frames that must have seen a cell before it can belong to an object.
     #[arg(long, default_value_t = ObjectParams::default().min_views)]
     pub min_views: u16,
-    /// Log-odds above the prior an object must reach somewhere.
-    #[arg(long, default_value_t = ObjectParams::default().seed_evidence)]
-    pub seed_evidence: f32,
-    /// Log-odds above the prior every cell of an object must have.
-    #[arg(long, default_value_t = ObjectParams::default().grow_evidence)]
-    pub grow_evidence: f32,
+    /// Evidence (log-odds above the prior) an object must reach somewhere, as a fraction of
+    /// the grid's highest.
+    #[arg(long, default_value_t = ObjectParams::default().seed_fraction)]
+    pub seed_fraction: f32,
+    /// Evidence every cell of an object must have, as a fraction of the grid's highest.
+    #[arg(long, default_value_t = ObjectParams::default().grow_fraction)]
+    pub grow_fraction: f32,
 }
 
 fn parse_floats(s: &str, n: usize) -> Result<Vec<f64>, String> {
@@ -78,7 +83,9 @@ fn parse_floats(s: &str, n: usize) -> Result<Vec<f64>, String> {
         .map(|x| x.trim().parse::<f64>().map_err(|e| format!("{x:?}: {e}")))
         .collect::<Result<_, _>>()?;
     if v.len() != n || v.iter().any(|x| !x.is_finite()) {
-        return Err(format!("expected {n} finite comma-separated numbers, got {s:?}"));
+        return Err(format!(
+            "expected {n} finite comma-separated numbers, got {s:?}"
+        ));
     }
     Ok(v)
 }
@@ -105,10 +112,11 @@ impl FuseArgs {
             clamp: self.clamp,
             objects: ObjectParams {
                 min_views: self.min_views,
-                seed_evidence: self.seed_evidence,
-                grow_evidence: self.grow_evidence,
+                seed_fraction: self.seed_fraction,
+                grow_fraction: self.grow_fraction,
                 ..ObjectParams::default()
             },
+            poses: self.poses,
         }
     }
 }
@@ -120,7 +128,12 @@ pub struct Fused {
 }
 
 /// Loads the model and session, replays, and builds the report.
-pub fn fuse(session: &Path, model_path: &Path, args: &FuseArgs, topics: &TopicArgs) -> anyhow::Result<Fused> {
+pub fn fuse(
+    session: &Path,
+    model_path: &Path,
+    args: &FuseArgs,
+    topics: &TopicArgs,
+) -> anyhow::Result<Fused> {
     let t0 = Instant::now();
     let model = Model::load(model_path).context("loading the model")?;
     let reader = SessionReader::open(session, topics.topics()?).context("reading the session")?;

@@ -241,7 +241,10 @@ pub enum SessionError {
 #[derive(Debug, Clone, PartialEq)]
 pub enum FramePixels {
     /// PNG or JPEG bytes (`format` as in the CompressedImage).
-    Encoded { format: String, data: Vec<u8> },
+    Encoded {
+        format: String,
+        data: Vec<u8>,
+    },
     Raw(Image),
 }
 
@@ -272,11 +275,13 @@ impl Frame {
     /// Width and height without decoding the pixels.
     pub fn dimensions(&self) -> Result<(u32, u32), String> {
         match &self.pixels {
-            FramePixels::Encoded { data, .. } => image::ImageReader::new(std::io::Cursor::new(data))
-                .with_guessed_format()
-                .map_err(|e| e.to_string())?
-                .into_dimensions()
-                .map_err(|e| format!("image does not decode: {e}")),
+            FramePixels::Encoded { data, .. } => {
+                image::ImageReader::new(std::io::Cursor::new(data))
+                    .with_guessed_format()
+                    .map_err(|e| e.to_string())?
+                    .into_dimensions()
+                    .map_err(|e| format!("image does not decode: {e}"))
+            }
             FramePixels::Raw(img) => Ok((img.width, img.height)),
         }
     }
@@ -368,13 +373,14 @@ fn raw_to_rgb8(img: &Image) -> Result<Rgb8, String> {
     })
 }
 
-/// A decoded session message, by role.
+/// A decoded session message, by role. The large fixed-size messages are boxed so that the
+/// enum stays small as it moves through the replay.
 #[derive(Debug, Clone, PartialEq)]
 pub enum SessionMsg {
     Frame(Frame),
-    CameraInfo(CameraInfo),
+    CameraInfo(Box<CameraInfo>),
     TfStatic(TfMessage),
-    Odom(Odometry),
+    Odom(Box<Odometry>),
     CmdVel(TwistStamped),
     Label(ObjectLabel),
     GroundTruthPose(PoseStamped),

@@ -134,20 +134,19 @@ impl SessionReader {
             match event {
                 Ok(LinearReadEvent::ReadRequest(n)) => {
                     let n = n.min(buf.len() - cursor);
-                    reader
-                        .insert(n)
-                        .copy_from_slice(&buf[cursor..cursor + n]);
+                    reader.insert(n).copy_from_slice(&buf[cursor..cursor + n]);
                     reader.notify_read(n);
                     cursor += n;
                 }
                 Ok(LinearReadEvent::Record { data, opcode }) => {
-                    let record = mcap::parse_record(opcode, data).map_err(|source| {
-                        SessionError::Mcap {
+                    let record =
+                        mcap::parse_record(opcode, data).map_err(|source| SessionError::Mcap {
                             at: self.at_last(),
-                            what: format!("record (opcode {opcode:#04x}) after this does not parse"),
+                            what: format!(
+                                "record (opcode {opcode:#04x}) after this does not parse"
+                            ),
                             source,
-                        }
-                    })?;
+                        })?;
                     if let Record::Message { header, .. } = &record {
                         let prev = last_time.insert(header.channel_id, header.log_time);
                         if let Some(prev) = prev.filter(|p| *p > header.log_time) {
@@ -189,7 +188,8 @@ impl SessionReader {
             }
         }
         if self.channels.is_empty() && self.messages.is_empty() && self.warnings.is_empty() {
-            self.warnings.push("file holds no channels and no messages".to_owned());
+            self.warnings
+                .push("file holds no channels and no messages".to_owned());
         }
         Ok(())
     }
@@ -211,16 +211,20 @@ impl SessionReader {
                 let (schema_name, schema_encoding, schema_data) = if c.schema_id == 0 {
                     Default::default()
                 } else {
-                    schemas.get(&c.schema_id).cloned().ok_or_else(|| {
-                        SessionError::Invalid {
+                    schemas
+                        .get(&c.schema_id)
+                        .cloned()
+                        .ok_or_else(|| SessionError::Invalid {
                             at: At {
                                 path: self.path.clone(),
                                 topic: Some(c.topic.clone()),
                                 log_time_ns: None,
                             },
-                            what: format!("channel {} refers to unknown schema {}", c.id, c.schema_id),
-                        }
-                    })?
+                            what: format!(
+                                "channel {} refers to unknown schema {}",
+                                c.id, c.schema_id
+                            ),
+                        })?
                 };
                 self.channels.insert(
                     c.id,
@@ -242,10 +246,7 @@ impl SessionReader {
                             topic: None,
                             log_time_ns: Some(header.log_time),
                         },
-                        what: format!(
-                            "message refers to unknown channel {}",
-                            header.channel_id
-                        ),
+                        what: format!("message refers to unknown channel {}", header.channel_id),
                     });
                 }
                 self.messages.push(RawMessage {
@@ -311,7 +312,11 @@ impl SessionReader {
     }
 
     /// The role of a channel's topic, after checking its encoding and schema fit that role.
-    pub fn channel_role(&self, channel: &ChannelInfo, log_time_ns: u64) -> Result<Option<Role>, SessionError> {
+    pub fn channel_role(
+        &self,
+        channel: &ChannelInfo,
+        log_time_ns: u64,
+    ) -> Result<Option<Role>, SessionError> {
         let Some(role) = self.topics.role_of(&channel.topic) else {
             return Ok(None);
         };
@@ -370,9 +375,11 @@ impl SessionReader {
                     pixels: FramePixels::Raw(m),
                 })
             }
-            Role::CameraInfo => SessionMsg::CameraInfo(CameraInfo::from_cdr(d).map_err(err)?),
+            Role::CameraInfo => {
+                SessionMsg::CameraInfo(Box::new(CameraInfo::from_cdr(d).map_err(err)?))
+            }
             Role::TfStatic => SessionMsg::TfStatic(TfMessage::from_cdr(d).map_err(err)?),
-            Role::Odom => SessionMsg::Odom(Odometry::from_cdr(d).map_err(err)?),
+            Role::Odom => SessionMsg::Odom(Box::new(Odometry::from_cdr(d).map_err(err)?)),
             Role::CmdVel => SessionMsg::CmdVel(TwistStamped::from_cdr(d).map_err(err)?),
             Role::Labels => SessionMsg::Label(ObjectLabel::from_cdr(d).map_err(err)?),
             Role::GroundTruthPose => {

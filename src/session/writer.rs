@@ -57,7 +57,12 @@ impl SessionWriter {
         })
     }
 
-    fn mcap_err(&self, topic: &str, log_time_ns: u64, what: &str) -> impl FnOnce(mcap::McapError) -> SessionError + use<> {
+    fn mcap_err(
+        &self,
+        topic: &str,
+        log_time_ns: u64,
+        what: &str,
+    ) -> impl FnOnce(mcap::McapError) -> SessionError + use<> {
         let at = At {
             path: self.partial.clone(),
             topic: Some(topic.to_owned()),
@@ -68,7 +73,12 @@ impl SessionWriter {
     }
 
     /// Writes `msg` on `topic` with log_time = publish_time = `stamp_ns` (its header stamp).
-    pub fn write<M: RosMessage>(&mut self, topic: &str, stamp_ns: i64, msg: &M) -> Result<(), SessionError> {
+    pub fn write<M: RosMessage>(
+        &mut self,
+        topic: &str,
+        stamp_ns: i64,
+        msg: &M,
+    ) -> Result<(), SessionError> {
         let log_time_ns = u64::try_from(stamp_ns).map_err(|_| SessionError::Invalid {
             at: At {
                 path: self.partial.clone(),
@@ -140,4 +150,3 @@ impl SessionWriter {
         Ok(self.path)
     }
 }
-
