@@ -25,6 +25,7 @@ pub mod msgs;
 pub mod npy;
 pub mod objects;
 pub mod output;
+pub mod refine;
 pub mod replay;
 pub mod report;
 pub mod session;

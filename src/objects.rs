@@ -34,9 +34,9 @@ pub struct ObjectParams {
 impl Default for ObjectParams {
     fn default() -> Self {
         Self {
-            min_views: 3,
-            seed_fraction: 0.75,
-            grow_fraction: 0.5,
+            min_views: 4,
+            seed_fraction: 0.8,
+            grow_fraction: 0.7,
             min_cells: 8,
         }
     }
@@ -202,7 +202,7 @@ mod tests {
     fn two_blobs_two_objects_with_centroids() {
         let g = grid_with(&[
             ([2, 2, 2], [5, 5, 5], 20.0, 5),
-            ([12, 12, 2], [15, 16, 4], 15.0, 4),
+            ([12, 12, 2], [15, 16, 4], 17.0, 4),
         ]);
         let objs = find_objects(&g, &ObjectParams::default());
         assert_eq!(objs.len(), 2);
@@ -234,10 +234,10 @@ mod tests {
     fn hysteresis_grows_from_the_seed_through_weaker_cells() {
         let g = grid_with(&[
             ([2, 2, 2], [4, 4, 4], 20.0, 5),
-            // 12 / 20 = 0.6 of the peak: above the grow fraction, below the seed fraction.
-            ([4, 2, 2], [8, 4, 4], 12.0, 5),
+            // 15 / 20 = 0.75 of the peak: above the grow fraction, below the seed fraction.
+            ([4, 2, 2], [8, 4, 4], 15.0, 5),
             // Same strength but not connected: no seed of its own, so not an object.
-            ([12, 12, 12], [16, 16, 16], 12.0, 5),
+            ([12, 12, 12], [16, 16, 16], 15.0, 5),
         ]);
         let objs = find_objects(&g, &ObjectParams::default());
         assert_eq!(objs.len(), 1);

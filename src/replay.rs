@@ -19,6 +19,7 @@ use crate::grid::{Grid, GridError, GridSpec, TileEvidence, logit};
 use crate::motion::{BlurMode, Blurrer, Segment, segments_between};
 use crate::msgs::GroundTruth;
 use crate::objects::{Object, ObjectParams, find_objects, find_objects_with_cells};
+use crate::refine::{Correction, refine};
 use crate::session::{At, Rgb8, Role, SessionError, SessionMsg, SessionReader, fmt_ns};
 
 /// A frame is posed when the odometry reaches within this of its stamp on both sides (or
@@ -89,6 +90,8 @@ pub struct FuseOptions {
     /// Where frame poses come from: /odom (the default, what a robot has) or the simulator's
     /// /ground_truth/pose (to tell odometry error apart from classifier error).
     pub poses: PoseSource,
+    /// Localise each frame against the belief before fusing it (see [`crate::refine`]).
+    pub refine_poses: bool,
 }
 
 #[derive(
@@ -112,6 +115,7 @@ impl Default for FuseOptions {
             clamp: None,
             objects: ObjectParams::default(),
             poses: PoseSource::Odometry,
+            refine_poses: false,
         }
     }
 }
@@ -356,8 +360,13 @@ pub struct FrameStep {
     /// 0-based count of fused frames.
     pub index: usize,
     pub frame: FrameRef,
+    /// The camera and robot poses the frame was fused with (refined, when refining).
     pub odom_from_camera: Iso3,
     pub odom_from_base: Iso3,
+    /// The robot pose /odom gives for the frame.
+    pub odometry: Iso3,
+    /// The pose correction, when refining.
+    pub correction: Option<Correction>,
     pub image: Rgb8,
     pub probs: TileProbs,
     /// Commands blurred into the belief before this frame.
@@ -399,8 +408,14 @@ pub struct FrameSummary {
     pub index: usize,
     pub stamp_ns: i64,
     pub log_time_ns: u64,
+    /// Robot pose the frame was fused with (refined, when refining).
     pub position_m: [f64; 3],
     pub yaw_rad: f64,
+    /// Robot pose from /odom.
+    pub odom_position_m: [f64; 3],
+    pub odom_yaw_rad: f64,
+    /// The correction refinement applied (none when not refining).
+    pub correction: Option<Correction>,
     pub cells_updated: usize,
     pub max_probability: f64,
     pub objects: Vec<Object>,
@@ -554,9 +569,11 @@ pub fn replay(
     let mut last_stamp: Option<i64> = None;
     let mut per_frame = Vec::new();
     let mut fused = 0usize;
+    // odom -> corrected odom: what refinement has learnt of the odometry's drift so far.
+    let mut drift = Iso3::identity();
     for fr in &data.frames {
         let at = || reader.at(Some(&fr.topic), fr.log_time_ns);
-        let Some(odom_from_base) = data.odom_at(fr.stamp_ns) else {
+        let Some(odometry) = data.odom_at(fr.stamp_ns) else {
             warnings.push(format!(
                 "{}: no {} pose within 50 ms of stamp {}; frame skipped",
                 at(),
@@ -596,10 +613,45 @@ pub fn replay(
             None => Vec::new(),
         };
         for seg in &segments {
-            let pose = data.odom_at(seg.start_ns).unwrap_or(odom_from_base);
+            let pose = drift * data.odom_at(seg.start_ns).unwrap_or(odometry);
             fuser.blur(seg, &pose);
         }
         let probs = classifier.classify(&image);
+        let predicted = drift * odometry;
+        let correction = (options.refine_poses && fused > 0).then(|| {
+            let (mut var_yaw, mut var_xy) = (0.0, 0.0);
+            for seg in &segments {
+                let t = seg.duration_s();
+                if seg.w_radps != 0.0 {
+                    var_yaw += (options.sigma_w_radps * t).powi(2);
+                }
+                if seg.v_mps != 0.0 {
+                    var_xy += (options.sigma_v_mps * t).powi(2);
+                }
+            }
+            let ev = TileEvidence::from_probabilities(
+                probs.rows,
+                probs.cols,
+                probs.tile_px,
+                &probs.p,
+                fuser.grid.prior,
+            );
+            refine(
+                &fuser.grid,
+                &options.objects,
+                &data.camera,
+                &data.base_from_camera,
+                &predicted,
+                &ev,
+                var_yaw.sqrt(),
+                var_xy.sqrt(),
+            )
+        });
+        let odom_from_base = match &correction {
+            Some(c) => c.apply(&predicted),
+            None => predicted,
+        };
+        drift = odom_from_base * odometry.inverse();
         let odom_from_camera = odom_from_base * data.base_from_camera;
         let cells_updated =
             fuser.integrate(&odom_from_camera, &odom_from_base, &data.camera, &probs);
@@ -609,6 +661,8 @@ pub fn replay(
             frame: fr.clone(),
             odom_from_camera,
             odom_from_base,
+            odometry,
+            correction,
             image,
             probs,
             segments,
@@ -629,12 +683,16 @@ pub fn replay(
             .copied()
             .fold(f32::NEG_INFINITY, f32::max);
         let base = odom_from_base.translation.vector;
+        let odo = odometry.translation.vector;
         per_frame.push(FrameSummary {
             index: fused,
             stamp_ns: fr.stamp_ns,
             log_time_ns: fr.log_time_ns,
             position_m: [base.x, base.y, base.z],
             yaw_rad: yaw_of(&odom_from_base),
+            odom_position_m: [odo.x, odo.y, odo.z],
+            odom_yaw_rad: yaw_of(&odometry),
+            correction,
             cells_updated,
             max_probability: crate::grid::sigmoid(f64::from(max_l)),
             objects,

@@ -184,7 +184,7 @@ fn train_then_predict_finds_the_box() {
 
     let m: serde_json::Value = serde_json::from_slice(&std::fs::read(&model).unwrap()).unwrap();
     assert_eq!(m["version"], 1);
-    assert_eq!(m["features"], "hsv");
+    assert_eq!(m["features"], "rgb332");
     assert_eq!(m["tile_px"], 8);
     let meta = &m["metadata"];
     // 18 labelled frames x 30 rows x 32 cols = 17280 aligned tiles, in thirds of 5760.
@@ -350,7 +350,7 @@ fn bad_inputs_fail_with_one_line_and_no_output() {
         ),
         (
             "feat.json",
-            "\"features\": \"hsv\"",
+            "\"features\": \"rgb332\"",
             "\"features\": \"lab\"",
             "feature spec \"lab\" is not known",
         ),

@@ -55,7 +55,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 
     println!("== training on {}", train_path.display());
     let cfg = TrainConfig {
-        features: FeatureKind::Hsv,
+        features: FeatureKind::Rgb332,
         tile_px: 8,
         train_stride_px: 4,
         seed: 0,

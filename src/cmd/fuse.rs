@@ -117,6 +117,9 @@ impl FuseArgs {
                 ..ObjectParams::default()
             },
             poses: self.poses,
+            // Not offered yet: measured, it does not improve the shipped tours (see
+            // docs/fuser.md); the library keeps it for that work.
+            refine_poses: false,
         }
     }
 }

@@ -20,8 +20,10 @@ pub struct Args {
     /// Where to write the model JSON.
     #[arg(short = 'o', long = "output")]
     output: PathBuf,
-    /// Colour quantisation of the tile histograms.
-    #[arg(long, value_enum, default_value = "hsv")]
+    /// Colour quantisation of the tile histograms. rgb332 is the default: on the shipped
+    /// tours its maps fuse into tighter objects than hsv's (docs/fuser.md), though hsv scores
+    /// a slightly higher tile AUC.
+    #[arg(long, value_enum, default_value = "rgb332")]
     features: FeatureKind,
     /// Seed of the split into training, test and pruning thirds.
     #[arg(long, default_value_t = 0)]
