@@ -30,6 +30,8 @@ pub struct Args {
     pub fuse: FuseArgs,
     #[command(flatten)]
     pub topics: TopicArgs,
+    #[command(flatten)]
+    pub rerun: objloc::viz::VizArgs,
 }
 
 /// A shipped recording, found from the working directory or, failing that, the source tree
@@ -72,10 +74,17 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     print!("{}", model.summary_table());
 
     println!("== fusing {}", tour_path.display());
-    let f = fuse(&tour_path, &model_path, &args.fuse, &args.topics)
-        .with_context(|| format!("demo: fuse {}", tour_path.display()))?;
-    print_summary(&f);
     let report_path = args.out.join("report.json");
+    let f = fuse(
+        &tour_path,
+        &model_path,
+        &args.fuse,
+        &args.topics,
+        &args.rerun,
+        &objloc::viz::rrd_beside(&report_path),
+    )
+    .with_context(|| format!("demo: fuse {}", tour_path.display()))?;
+    print_summary(&f);
     let grid_path = args.out.join("grid.npy");
     write_outputs(&f, Some(&report_path), Some(&grid_path))?;
 

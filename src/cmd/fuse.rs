@@ -13,6 +13,10 @@ use objloc::objects::ObjectParams;
 use objloc::replay::{FuseOptions, Outcome, PoseSource, replay};
 use objloc::report::{Report, file_sha256};
 use objloc::session::SessionReader;
+use objloc::viz::{
+    self, VizArgs,
+    fuse::{FuseViz, VizOptions},
+};
 
 use super::TopicArgs;
 
@@ -33,6 +37,8 @@ pub struct Args {
     pub grid: Option<PathBuf>,
     #[command(flatten)]
     pub topics: TopicArgs,
+    #[command(flatten)]
+    pub rerun: VizArgs,
 }
 
 /// Fusion options shared by `fuse` and `demo`.
@@ -136,14 +142,43 @@ pub fn fuse(
     model_path: &Path,
     args: &FuseArgs,
     topics: &TopicArgs,
+    rerun: &VizArgs,
+    default_rrd: &Path,
 ) -> anyhow::Result<Fused> {
     let t0 = Instant::now();
     let model = Model::load(model_path).context("loading the model")?;
     let reader = SessionReader::open(session, topics.topics()?).context("reading the session")?;
+    let session_sha256 = file_sha256(session).with_context(|| session.display().to_string())?;
+    let model_sha256 = file_sha256(model_path).with_context(|| model_path.display().to_string())?;
     let t_load = t0.elapsed();
     let options = args.options();
     let t1 = Instant::now();
-    let outcome = replay(&reader, &model, &options, &mut []).context("fusing")?;
+    let id = viz::recording_id(
+        "fuse",
+        &[
+            &session_sha256,
+            &model_sha256,
+            &serde_json::to_string(&options)?,
+        ],
+    );
+    let stream = viz::open_stream(rerun, default_rrd, &id, Some(viz::fuse_blueprint()))?;
+    let mut observer = FuseViz::new(
+        stream.rec.clone(),
+        VizOptions {
+            objects: options.objects,
+            ..VizOptions::default()
+        },
+    );
+    let outcome = replay(&reader, &model, &options, &mut [&mut observer]).context("fusing")?;
+    // The observer holds a handle on the recording: it must go before the stream is closed.
+    drop(observer);
+    if let Some(p) = stream.finish()? {
+        println!(
+            "rerun recording: {} (open it with: {})",
+            p.display(),
+            viz::open_command(&p)
+        );
+    }
     let t_replay = t1.elapsed();
     let mut timing = BTreeMap::new();
     timing.insert("load".to_owned(), t_load.as_secs_f64() * 1e3);
@@ -152,9 +187,9 @@ pub fn fuse(
         &outcome,
         &options,
         &session.display().to_string(),
-        file_sha256(session).with_context(|| session.display().to_string())?,
+        session_sha256,
         &model_path.display().to_string(),
-        file_sha256(model_path).with_context(|| model_path.display().to_string())?,
+        model_sha256,
         timing,
     );
     Ok(Fused { outcome, report })
@@ -214,8 +249,27 @@ pub fn print_summary(f: &Fused) {
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
-    let f = fuse(&args.session, &args.model, &args.fuse, &args.topics)
-        .with_context(|| format!("fuse {}", args.session.display()))?;
+    // The recording goes beside the report, or beside the session when there is none.
+    let default_rrd = match &args.report {
+        Some(r) => viz::rrd_beside(r),
+        None => {
+            let stem = args
+                .session
+                .file_stem()
+                .unwrap_or_default()
+                .to_string_lossy();
+            PathBuf::from(format!("{stem}-fuse.rrd"))
+        }
+    };
+    let f = fuse(
+        &args.session,
+        &args.model,
+        &args.fuse,
+        &args.topics,
+        &args.rerun,
+        &default_rrd,
+    )
+    .with_context(|| format!("fuse {}", args.session.display()))?;
     print_summary(&f);
     write_outputs(&f, args.report.as_deref(), args.grid.as_deref())?;
     let t = &f.report.timing_ms;

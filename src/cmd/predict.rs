@@ -28,6 +28,8 @@ pub struct Args {
     object: Option<String>,
     #[command(flatten)]
     topics: TopicArgs,
+    #[command(flatten)]
+    rerun: objloc::viz::VizArgs,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
@@ -41,6 +43,25 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .context("predict: classifying frames")?;
     pred.write(&args.out, &session, args.heatmaps)
         .context("predict: writing outputs")?;
+    // The frames with their labels and maps, in Rerun (by default beside the outputs).
+    let id = objloc::viz::recording_id(
+        "predict",
+        &[&session.sha256, &serde_json::to_string(&model)?],
+    );
+    let stream = objloc::viz::open_stream(
+        &args.rerun,
+        &args.out.join("predict.rrd"),
+        &id,
+        Some(objloc::viz::train_blueprint()),
+    )?;
+    objloc::viz::train::log_training_frames(&stream.rec, &model, std::slice::from_ref(&session))?;
+    if let Some(p) = stream.finish()? {
+        println!(
+            "rerun recording: {} (open it with: {})",
+            p.display(),
+            objloc::viz::open_command(&p)
+        );
+    }
     let (rows, cols) = pred.maps.first().map_or((0, 0), |m| (m.rows, m.cols));
     println!(
         "{} frames of {rows} x {cols} tiles written to {}",

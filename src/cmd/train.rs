@@ -49,6 +49,8 @@ pub struct Args {
     export_features: Option<PathBuf>,
     #[command(flatten)]
     topics: TopicArgs,
+    #[command(flatten)]
+    rerun: objloc::viz::VizArgs,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
@@ -91,6 +93,29 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         export_features(&set, dir).context("train: exporting features")?;
     }
     print!("{}", model.summary_table());
+    // The tree as a graph and the training frames with their maps, in Rerun (by default
+    // beside the model).
+    let hashes: Vec<&str> = sessions.iter().map(|s| s.sha256.as_str()).collect();
+    let id = objloc::viz::recording_id(
+        "train",
+        &[&hashes.join(","), &serde_json::to_string(&model)?],
+    );
+    let stream = objloc::viz::open_stream(
+        &args.rerun,
+        &args.output.with_extension("rrd"),
+        &id,
+        Some(objloc::viz::train_blueprint()),
+    )
+    .context("train: opening the Rerun recording")?;
+    objloc::viz::train::log_tree(&stream.rec, &model)?;
+    objloc::viz::train::log_training_frames(&stream.rec, &model, &sessions)?;
+    if let Some(p) = stream.finish()? {
+        println!(
+            "rerun recording: {} (open it with: {})",
+            p.display(),
+            objloc::viz::open_command(&p)
+        );
+    }
     println!(
         "time: load+decode {:.3} s, features {:.3} s, fit time {:.4} s",
         t_load.as_secs_f64(),
