@@ -13,103 +13,20 @@
 mod common;
 
 use std::ffi::OsStr;
-use std::fs::File;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
-use std::sync::OnceLock;
 
 use objloc::msgs::{GroundTruth, ObjectLabel, RosMessage, schema_text};
 use objloc::session::{SessionMsg, SessionReader, Topics};
 use serde_json::{Value, json};
-use sha2::{Digest, Sha256};
 
+use common::pyenv::{
+    REQUIREMENTS, STAMP_FILE, ensure_pyenv, python, repo_dir, run_checked, sha256_hex,
+};
 use common::{
     CAMERA_FRAME, CMD_ANGULAR_Z_RADPS, CMD_LINEAR_X_MPS, FRAMES, HEIGHT_PX, MOUNT_ROTATION_XYZW,
     MOUNT_TRANSLATION_M, OBJECT, RECT_PX, T0_NS, WIDTH_PX, write_fixture_session,
 };
-
-const REQUIREMENTS: &str = "tests/py/requirements.txt";
-/// Written into the venv after a successful install: the SHA-256 of requirements.txt.
-const STAMP_FILE: &str = "objloc-requirements.sha256";
-
-fn repo_dir() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-}
-
-fn pyenv_dir() -> PathBuf {
-    std::env::var_os("OBJLOC_PYENV")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| repo_dir().join("target").join("pyenv"))
-}
-
-fn sha256_hex(bytes: &[u8]) -> String {
-    Sha256::digest(bytes)
-        .iter()
-        .map(|b| format!("{b:02x}"))
-        .collect()
-}
-
-fn run_checked(cmd: &mut Command) -> Result<Output, String> {
-    let out = cmd
-        .output()
-        .map_err(|e| format!("cannot run {cmd:?}: {e}"))?;
-    if !out.status.success() {
-        return Err(format!(
-            "{cmd:?} failed ({}):\n--- stdout\n{}\n--- stderr\n{}",
-            out.status,
-            String::from_utf8_lossy(&out.stdout),
-            String::from_utf8_lossy(&out.stderr)
-        ));
-    }
-    Ok(out)
-}
-
-/// Creates (or updates) the venv at `dir` so it holds exactly what requirements.txt pins.
-/// Skips pip when the stamp in the venv matches the hash of requirements.txt.
-fn ensure_pyenv(dir: &Path) -> Result<PathBuf, String> {
-    let req_path = repo_dir().join(REQUIREMENTS);
-    let req = std::fs::read(&req_path).map_err(|e| format!("{}: {e}", req_path.display()))?;
-    let want = sha256_hex(&req);
-    let parent = dir.parent().unwrap_or(Path::new("."));
-    std::fs::create_dir_all(parent).map_err(|e| format!("{}: {e}", parent.display()))?;
-    // Beside the venv, not in it, so it can be taken before the venv exists.
-    let lock_path = dir.with_extension("lock");
-    let lock = File::create(&lock_path).map_err(|e| format!("{}: {e}", lock_path.display()))?;
-    lock.lock()
-        .map_err(|e| format!("cannot lock {}: {e}", lock_path.display()))?;
-
-    let python = dir.join("bin").join("python");
-    let stamp = dir.join(STAMP_FILE);
-    if python.exists() && std::fs::read_to_string(&stamp).ok().as_deref() == Some(want.as_str()) {
-        return Ok(python);
-    }
-    if !python.exists() {
-        run_checked(Command::new("python3").arg("-m").arg("venv").arg(dir))?;
-    }
-    run_checked(
-        Command::new(&python)
-            .args([
-                "-m",
-                "pip",
-                "install",
-                "--disable-pip-version-check",
-                "--quiet",
-                "-r",
-            ])
-            .arg(&req_path),
-    )?;
-    std::fs::write(&stamp, &want).map_err(|e| format!("{}: {e}", stamp.display()))?;
-    Ok(python)
-}
-
-/// The venv's python, creating the venv on first use in this process.
-fn python() -> &'static Path {
-    static PYENV: OnceLock<Result<PathBuf, String>> = OnceLock::new();
-    match PYENV.get_or_init(|| ensure_pyenv(&pyenv_dir())) {
-        Ok(p) => p,
-        Err(e) => panic!("cannot set up the Python venv for the interop tests: {e}"),
-    }
-}
 
 /// Runs `tests/py/<script>` with `args` in the venv and parses its stdout as JSON.
 fn py_json<S: AsRef<OsStr>>(script: &str, args: &[S]) -> Value {

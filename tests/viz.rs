@@ -8,87 +8,21 @@
 //! one install. Expected values are written out by hand or come from the session file, never
 //! from the code under test.
 
-use std::fs::File;
+mod common;
+
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
-use std::sync::OnceLock;
 
+use common::pyenv::{repo_dir, run_checked};
 use objloc::model::Model;
 use objloc::replay::{FuseOptions, Observer, replay};
 use objloc::session::{SessionReader, Topics};
 use objloc::viz::fuse::{FuseViz, VizOptions};
 use objloc::viz::{self, Target, VizArgs};
-use sha2::{Digest, Sha256};
 
-const REQUIREMENTS: &str = "tests/py/requirements.txt";
-const STAMP_FILE: &str = "objloc-requirements.sha256";
-
-fn repo_dir() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-}
-
-fn run_checked(cmd: &mut Command) -> Result<Output, String> {
-    let out = cmd
-        .output()
-        .map_err(|e| format!("cannot run {cmd:?}: {e}"))?;
-    if !out.status.success() {
-        return Err(format!(
-            "{cmd:?} failed ({}):\n--- stdout\n{}\n--- stderr\n{}",
-            out.status,
-            String::from_utf8_lossy(&out.stdout),
-            String::from_utf8_lossy(&out.stderr)
-        ));
-    }
-    Ok(out)
-}
-
-/// The venv's `rerun` CLI; creates the venv as tests/interop.rs does when it is missing or
-/// stale (same lock file, same stamp), so whichever test runs first installs it.
-fn rerun_cli() -> &'static Path {
-    static CLI: OnceLock<Result<PathBuf, String>> = OnceLock::new();
-    let r = CLI.get_or_init(|| {
-        let dir = std::env::var_os("OBJLOC_PYENV")
-            .map(PathBuf::from)
-            .unwrap_or_else(|| repo_dir().join("target").join("pyenv"));
-        let req_path = repo_dir().join(REQUIREMENTS);
-        let req = std::fs::read(&req_path).map_err(|e| format!("{}: {e}", req_path.display()))?;
-        let want: String = Sha256::digest(&req)
-            .iter()
-            .map(|b| format!("{b:02x}"))
-            .collect();
-        if let Some(parent) = dir.parent() {
-            std::fs::create_dir_all(parent).map_err(|e| e.to_string())?;
-        }
-        let lock = File::create(dir.with_extension("lock")).map_err(|e| e.to_string())?;
-        lock.lock().map_err(|e| e.to_string())?;
-        let python = dir.join("bin").join("python");
-        let stamp = dir.join(STAMP_FILE);
-        if !(python.exists()
-            && std::fs::read_to_string(&stamp).ok().as_deref() == Some(want.as_str()))
-        {
-            if !python.exists() {
-                run_checked(Command::new("python3").arg("-m").arg("venv").arg(&dir))?;
-            }
-            run_checked(
-                Command::new(&python)
-                    .args([
-                        "-m",
-                        "pip",
-                        "install",
-                        "--disable-pip-version-check",
-                        "--quiet",
-                        "-r",
-                    ])
-                    .arg(&req_path),
-            )?;
-            std::fs::write(&stamp, &want).map_err(|e| e.to_string())?;
-        }
-        Ok(dir.join("bin").join("rerun"))
-    });
-    match r {
-        Ok(p) => p,
-        Err(e) => panic!("cannot set up the Python venv with rerun-sdk: {e}"),
-    }
+/// The venv's `rerun` CLI (the venv is created on first use, see tests/common/pyenv.rs).
+fn rerun_cli() -> PathBuf {
+    common::pyenv::python().with_file_name("rerun")
 }
 
 fn rerun(args: &[&std::ffi::OsStr]) -> Output {

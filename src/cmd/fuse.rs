@@ -169,9 +169,16 @@ pub fn fuse(
             ..VizOptions::default()
         },
     );
-    let outcome = replay(&reader, &model, &options, &mut [&mut observer]).context("fusing")?;
+    let result = replay(&reader, &model, &options, &mut [&mut observer]);
     // The observer holds a handle on the recording: it must go before the stream is closed.
     drop(observer);
+    let outcome = match result {
+        Ok(o) => o,
+        Err(e) => {
+            stream.abandon();
+            return Err(anyhow::Error::new(e).context("fusing"));
+        }
+    };
     if let Some(p) = stream.finish()? {
         println!(
             "rerun recording: {} (open it with: {})",

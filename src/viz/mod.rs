@@ -229,6 +229,16 @@ pub fn open_stream(
 }
 
 impl VizStream {
+    /// Closes the recording of a command that failed: a saved file is removed, so nothing
+    /// half-written is left that looks like a result.
+    pub fn abandon(self) {
+        drop(self.rec);
+        if let Some((partial, _)) = self.file {
+            // Best effort: the command is already failing with its own error.
+            let _ = std::fs::remove_file(partial);
+        }
+    }
+
     /// Flushes and closes the recording; a saved file is renamed into place and its path
     /// returned.
     pub fn finish(self) -> Result<Option<PathBuf>, VizError> {

@@ -6,6 +6,8 @@
 //! written, with the log time of each equal to its header stamp.
 #![allow(dead_code)] // each test crate uses a different part of this module
 
+pub mod pyenv;
+
 use std::collections::BTreeMap;
 use std::path::Path;
 

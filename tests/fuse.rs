@@ -1,0 +1,331 @@
+//! The fuser at the process boundary: `objloc demo`, `fuse` and `eval` on the shipped
+//! recordings. Determinism across thread counts, agreement with an independent NumPy
+//! implementation of the update, and one-line errors on bad input.
+//!
+//! Invariants: every test writes into its own temporary directory; models are trained by
+//! the binary itself from recordings/chair-train.mcap.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use common::pyenv::{python, repo_dir, run_checked};
+use serde_json::Value;
+
+fn objloc(args: &[&str], envs: &[(&str, &str)]) -> Output {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_objloc"));
+    cmd.current_dir(repo_dir()).args(args);
+    for (k, v) in envs {
+        cmd.env(k, v);
+    }
+    cmd.output().expect("run objloc")
+}
+
+fn ok(out: &Output) -> String {
+    assert!(
+        out.status.success(),
+        "exit {:?}\n--- stdout\n{}\n--- stderr\n{}",
+        out.status,
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+/// A failure: exit 1, one `error:` line on stderr, no panic.
+fn one_line_error(out: &Output) -> String {
+    let err = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert_eq!(out.status.code(), Some(1), "stderr: {err}");
+    let lines: Vec<&str> = err.lines().filter(|l| !l.starts_with("warning:")).collect();
+    assert_eq!(lines.len(), 1, "not one line: {err}");
+    assert!(lines[0].starts_with("error: "), "{err}");
+    assert!(!err.contains("panicked"), "{err}");
+    lines[0].to_owned()
+}
+
+fn p(path: &Path) -> &str {
+    path.to_str().expect("utf-8 temp path")
+}
+
+fn train(dir: &Path) -> PathBuf {
+    let model = dir.join("chair.json");
+    ok(&objloc(
+        &[
+            "train",
+            "recordings/chair-train.mcap",
+            "-o",
+            p(&model),
+            "--save",
+            p(&dir.join("train.rrd")),
+        ],
+        &[],
+    ));
+    model
+}
+
+fn report(path: &Path) -> Value {
+    serde_json::from_slice(&std::fs::read(path).expect("report")).expect("report JSON")
+}
+
+#[test]
+fn demo_locates_the_chair_and_writes_its_outputs() {
+    let dir = tempfile::tempdir().unwrap();
+    let out_dir = dir.path().join("demo");
+    let text = ok(&objloc(&["demo", "--out", p(&out_dir)], &[]));
+    // "chair: located at (x, y, z) m, true centre (...) m, error E m"
+    let line = text
+        .lines()
+        .find(|l| l.starts_with("chair: located at"))
+        .unwrap_or_else(|| panic!("no located chair in:\n{text}"));
+    let err: f64 = line
+        .rsplit("error ")
+        .next()
+        .and_then(|s| s.trim_end_matches(" m").parse().ok())
+        .unwrap_or_else(|| panic!("no error in {line:?}"));
+    // Measured 0.115 m (docs/fuser.md); the target is 0.08 m, not yet met.
+    assert!(err < 0.15, "{line}");
+    let r = report(&out_dir.join("report.json"));
+    assert_eq!(r["frames"], 8);
+    assert_eq!(r["objects"].as_array().unwrap().len(), 1);
+    assert_eq!(r["grid"]["voxel_size_m"], 0.04);
+    assert_eq!(r["grid"]["sha256"].as_str().unwrap().len(), 64);
+    let [nx, ny, nz] = [0, 1, 2].map(|i| r["grid"]["dims"][i].as_u64().unwrap() as usize);
+    // The grid file: float32 (nx, ny, nz) after a 128-byte-aligned header.
+    let npy = std::fs::read(out_dir.join("grid.npy")).unwrap();
+    let header_len = u16::from_le_bytes([npy[8], npy[9]]) as usize;
+    assert_eq!(npy.len(), 10 + header_len + 4 * nx * ny * nz);
+    assert!(out_dir.join("report.rrd").metadata().unwrap().len() > 100_000);
+    // Nothing left half-written.
+    for e in std::fs::read_dir(&out_dir).unwrap() {
+        let name = e.unwrap().file_name();
+        assert!(!name.to_string_lossy().ends_with(".partial"), "{name:?}");
+    }
+}
+
+#[test]
+fn fuse_is_bit_identical_across_runs_and_thread_counts() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = train(dir.path());
+    let mut shas = Vec::new();
+    let mut grids = Vec::new();
+    for (run, threads) in ["1", "2", "8", "2"].iter().enumerate() {
+        let rep = dir.path().join(format!("r{run}.json"));
+        let grid = dir.path().join(format!("g{run}.npy"));
+        ok(&objloc(
+            &[
+                "fuse",
+                "recordings/chair-tour.mcap",
+                "--model",
+                p(&model),
+                "--report",
+                p(&rep),
+                "--grid",
+                p(&grid),
+            ],
+            &[("RAYON_NUM_THREADS", threads)],
+        ));
+        let r = report(&rep);
+        shas.push(r["grid"]["sha256"].as_str().unwrap().to_owned());
+        grids.push(std::fs::read(&grid).unwrap());
+        // Everything but the timing is a function of the inputs.
+        let mut r = r;
+        r.as_object_mut().unwrap().remove("timing_ms");
+        if run > 0 {
+            let mut first = report(&dir.path().join("r0.json"));
+            first.as_object_mut().unwrap().remove("timing_ms");
+            assert_eq!(r, first, "report of run {run} ({threads} threads)");
+        }
+    }
+    assert!(shas.iter().all(|s| *s == shas[0]), "{shas:?}");
+    assert!(grids.iter().all(|g| *g == grids[0]));
+}
+
+#[test]
+fn grid_matches_an_independent_numpy_update() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = train(dir.path());
+    let pred = dir.path().join("pred");
+    ok(&objloc(
+        &[
+            "predict",
+            "recordings/chair-tour.mcap",
+            "--model",
+            p(&model),
+            "--out",
+            p(&pred),
+        ],
+        &[],
+    ));
+    let rep = dir.path().join("r.json");
+    let grid = dir.path().join("g.npy");
+    ok(&objloc(
+        &[
+            "fuse",
+            "recordings/chair-tour.mcap",
+            "--model",
+            p(&model),
+            "--sigma-v",
+            "0",
+            "--sigma-w",
+            "0",
+            "--report",
+            p(&rep),
+            "--grid",
+            p(&grid),
+        ],
+        &[],
+    ));
+    let out = run_checked(
+        Command::new(python())
+            .arg(repo_dir().join("tests/py/independent_update.py"))
+            .arg(repo_dir().join("recordings/chair-tour.mcap"))
+            .arg(pred.join("probs.npy"))
+            .arg(pred.join("stamps.npy"))
+            .arg(&rep)
+            .arg(&grid),
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
+    let v: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v["differing"], 0, "{v}");
+    // The comparison is not vacuous: 8 frames updated most of the grid, and the object rose.
+    let updated_by_objloc: u64 = report(&rep)["per_frame"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|f| f["cells_updated"].as_u64().unwrap())
+        .sum();
+    assert_eq!(v["updated"].as_u64().unwrap(), updated_by_objloc, "{v}");
+    assert!(v["above_half"].as_u64().unwrap() > 500, "{v}");
+}
+
+#[test]
+fn eval_scores_reports_side_by_side() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = train(dir.path());
+    let mut reports = Vec::new();
+    for blur in ["log-odds", "probability"] {
+        let rep = dir.path().join(format!("{blur}.json"));
+        ok(&objloc(
+            &[
+                "fuse",
+                "recordings/chair-tour.mcap",
+                "--model",
+                p(&model),
+                "--blur",
+                blur,
+                "--report",
+                p(&rep),
+            ],
+            &[],
+        ));
+        reports.push(rep);
+    }
+    let text = ok(&objloc(
+        &[
+            "eval",
+            "recordings/chair-tour.mcap",
+            "--report",
+            p(&reports[0]),
+            "--report",
+            p(&reports[1]),
+        ],
+        &[],
+    ));
+    assert!(text.contains("chair found at"), "{text}");
+    assert!(text.contains("voxel IoU"), "{text}");
+    assert!(text.contains("comparison:"), "{text}");
+    assert_eq!(text.matches("frame   7:").count(), 2, "{text}");
+    // JSON: one evaluation per report, per-frame errors for all 8 frames.
+    let json = ok(&objloc(
+        &[
+            "eval",
+            "recordings/chair-tour.mcap",
+            "--report",
+            p(&reports[0]),
+            "--json",
+        ],
+        &[],
+    ));
+    let v: Value = serde_json::from_str(&json).unwrap();
+    assert_eq!(v[0]["per_frame"].as_array().unwrap().len(), 8);
+    assert_eq!(v[0]["matches"].as_array().unwrap().len(), 1);
+    assert!(v[0]["voxel_iou"].as_f64().unwrap() > 0.0);
+}
+
+#[test]
+fn fuse_refuses_bad_input_with_one_line_errors_and_no_outputs() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = train(dir.path());
+    let rep = dir.path().join("r.json");
+    let tour = "recordings/chair-tour.mcap";
+    let fuse = |extra: &[&str]| {
+        let mut args = vec!["fuse", tour, "--report", p(&rep)];
+        args.extend_from_slice(extra);
+        objloc(&args, &[])
+    };
+
+    let line = one_line_error(&fuse(&["--model", "no/such/model.json"]));
+    assert!(line.contains("no/such/model.json"), "{line}");
+
+    let corrupt = dir.path().join("corrupt.json");
+    std::fs::write(&corrupt, b"{\"version\": 1, \"features\": ").unwrap();
+    let line = one_line_error(&fuse(&["--model", p(&corrupt)]));
+    assert!(line.contains("corrupt.json"), "{line}");
+
+    // A grid far beyond the memory limit is refused before allocating, with the size.
+    let line = one_line_error(&fuse(&["--model", p(&model), "--voxel", "0.001"]));
+    assert!(line.contains("MiB") && line.contains("--voxel"), "{line}");
+
+    // A malformed flag is a usage error: clap's exit code 2, naming the flag and the value.
+    let out = fuse(&["--model", p(&model), "--bounds", "0,0,0,1,1"]);
+    assert_eq!(out.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("--bounds") && err.contains("expected 6"), "{err}");
+
+    let not_mcap = dir.path().join("notes.mcap");
+    std::fs::write(&not_mcap, b"hello").unwrap();
+    let out = objloc(
+        &[
+            "fuse",
+            p(&not_mcap),
+            "--model",
+            p(&model),
+            "--report",
+            p(&rep),
+        ],
+        &[],
+    );
+    let line = one_line_error(&out);
+    assert!(
+        line.contains("notes.mcap") && line.contains("not an MCAP"),
+        "{line}"
+    );
+
+    // A session without /odom names the missing topic.
+    let bag = repo_dir().join("../shared/thirdparty/rosbag2/talker.mcap");
+    if bag.exists() {
+        let out = objloc(
+            &["fuse", p(&bag), "--model", p(&model), "--report", p(&rep)],
+            &[],
+        );
+        let line = one_line_error(&out);
+        assert!(
+            line.contains("/camera/camera_info") && line.contains("missing"),
+            "{line}"
+        );
+    }
+
+    assert!(!rep.exists(), "a failed fuse wrote a report");
+    assert!(
+        !dir.path().join("r.rrd").exists(),
+        "a failed fuse left a recording"
+    );
+    for e in std::fs::read_dir(dir.path()).unwrap() {
+        let name = e.unwrap().file_name();
+        assert!(
+            !name.to_string_lossy().ends_with(".partial"),
+            "{name:?} left behind"
+        );
+    }
+}
