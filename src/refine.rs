@@ -202,10 +202,9 @@ pub fn refine(
         if let Some(&(s, k)) = scored
             .iter()
             .max_by(|a, b| a.0.total_cmp(&b.0).then(b.1.cmp(&a.1)))
+            && s > best.0
         {
-            if s > best.0 {
-                best = (s, cands[k].0, cands[k].1, cands[k].2);
-            }
+            best = (s, cands[k].0, cands[k].1, cands[k].2);
         }
         centre = (best.1, best.2, best.3);
         step_yaw /= 2.0;
@@ -259,10 +258,12 @@ mod tests {
                 let [a, b, c] = spec.ijk(i);
                 let q = spec.center(a, b, c);
                 if let Some((u, v)) = cam.project(&(cam_from_odom * Point3::new(q[0], q[1], q[2])))
+                    && u >= 0.0
+                    && v >= 0.0
+                    && u < 256.0
+                    && v < 240.0
                 {
-                    if u >= 0.0 && v >= 0.0 && u < 256.0 && v < 240.0 {
-                        p[(v / 8.0) as usize * cols + (u / 8.0) as usize] = 0.95;
-                    }
+                    p[(v / 8.0) as usize * cols + (u / 8.0) as usize] = 0.95;
                 }
             }
         }

@@ -281,7 +281,10 @@ fn fuse_refuses_bad_input_with_one_line_errors_and_no_outputs() {
     let out = fuse(&["--model", p(&model), "--bounds", "0,0,0,1,1"]);
     assert_eq!(out.status.code(), Some(2));
     let err = String::from_utf8_lossy(&out.stderr);
-    assert!(err.contains("--bounds") && err.contains("expected 6"), "{err}");
+    assert!(
+        err.contains("--bounds") && err.contains("expected 6"),
+        "{err}"
+    );
 
     let not_mcap = dir.path().join("notes.mcap");
     std::fs::write(&not_mcap, b"hello").unwrap();
