@@ -38,7 +38,65 @@ fn setup(n: usize) -> (Grid, objloc::geometry::Iso3, Camera, TileEvidence) {
     (grid, odom_from_camera.inverse(), cam, ev)
 }
 
+/// The whole chair tour: replay without Rerun, and with the Rerun stream saved to an .rrd
+/// (the cost of streaming), medians of 5.
+fn chair_tour() {
+    use objloc::dataset::load_session;
+    use objloc::model::{TrainConfig, examples, fit_model};
+    use objloc::replay::{FuseOptions, replay};
+    use objloc::session::{SessionReader, Topics};
+    use objloc::viz::{self, VizArgs};
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let train = load_session(
+        &root.join("recordings/chair-train.mcap"),
+        Topics::default(),
+        None,
+        true,
+    )
+    .unwrap();
+    let cfg = TrainConfig {
+        features: objloc::features::FeatureKind::Rgb332,
+        tile_px: 8,
+        train_stride_px: 4,
+        seed: 0,
+        object: None,
+        tree: objloc::tree::TreeParams::default(),
+    };
+    let sessions = [train];
+    let set = examples(&sessions, &cfg).unwrap();
+    let model = fit_model(&sessions, &set, &cfg).unwrap();
+    let reader =
+        SessionReader::open(&root.join("recordings/chair-tour.mcap"), Topics::default()).unwrap();
+    let options = FuseOptions::default();
+    let plain = median_ms(5, || {
+        black_box(replay(&reader, &model, &options, &mut []).unwrap());
+    });
+    let dir = std::env::temp_dir().join(format!("objloc-bench-{}", std::process::id()));
+    let rrd = dir.join("tour.rrd");
+    let streamed = median_ms(5, || {
+        let stream = viz::open_stream(
+            &VizArgs::headless(),
+            &rrd,
+            "bench",
+            Some(viz::fuse_blueprint()),
+        )
+        .unwrap();
+        let mut obs = viz::fuse::FuseViz::new(stream.rec.clone(), viz::fuse::VizOptions::default());
+        black_box(replay(&reader, &model, &options, &mut [&mut obs]).unwrap());
+        drop(obs);
+        stream.finish().unwrap();
+    });
+    let size = std::fs::metadata(&rrd).map(|m| m.len()).unwrap_or(0);
+    let _ = std::fs::remove_dir_all(&dir);
+    println!(
+        "chair tour (8 frames, default options): replay {plain:.1} ms; with the Rerun stream to an .rrd {streamed:.1} ms ({:.2}x), .rrd {:.1} MB",
+        streamed / plain,
+        size as f64 / 1e6
+    );
+}
+
 fn main() {
+    chair_tour();
     let threads = rayon::current_num_threads();
     println!("fuser benchmarks, {threads} rayon threads, medians");
     let mut sizes = vec![50usize, 100, 200];

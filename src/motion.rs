@@ -30,6 +30,8 @@ pub enum BlurMode {
 
 /// Samples cover +-4 sigma; beyond that a Gaussian weighs under 3.4e-4 of its peak.
 const SPAN_SIGMAS: f64 = 4.0;
+/// Samples per sigma of a wide Gaussian in the rotation blur.
+const SAMPLES_PER_SIGMA: f64 = 2.0;
 /// Bound on samples per side, so a huge sigma cannot make the blur unbounded in time.
 const MAX_SAMPLES_PER_SIDE: usize = 256;
 
@@ -67,6 +69,16 @@ pub fn segments_between(commands: &[(i64, f64, f64)], from_ns: i64, to_ns: i64) 
         }
     }
     out
+}
+
+/// Samples each side of a Gaussian of `sigma_m` (arc length) for the rotation blur: one a
+/// cell apart while the Gaussian is narrow, at most [`SAMPLES_PER_SIGMA`] per sigma once it is
+/// wide (bilinear interpolation between samples smooths finer than that anyway), so the cost
+/// of a blur does not grow with the radius.
+fn samples_per_side(sigma_m: f64, voxel: f64) -> usize {
+    let by_cell = (SPAN_SIGMAS * sigma_m / voxel).ceil();
+    let by_sigma = (SPAN_SIGMAS * SAMPLES_PER_SIGMA).ceil();
+    (by_cell.min(by_sigma) as usize).min(MAX_SAMPLES_PER_SIDE)
 }
 
 /// Normalised Gaussian weights at offsets `k * spacing`, k = -n..=n.
@@ -168,6 +180,35 @@ pub mod kernel {
         }
         let voxel = spec.voxel_size_m;
         let [nx, ny, nz] = spec.dims;
+        // Columns with the same sample count share angles, sines and weights: computed once
+        // per count here rather than once per column.
+        let (lo, hi) = (spec.origin_m, spec.max_m());
+        let r_max = [
+            (lo[0], lo[1]),
+            (lo[0], hi[1]),
+            (hi[0], lo[1]),
+            (hi[0], hi[1]),
+        ]
+        .iter()
+        .map(|&(x, y)| (x - center_xy[0]).hypot(y - center_xy[1]))
+        .fold(0.0f64, f64::max);
+        let n_max = samples_per_side(sigma_rad * r_max, voxel);
+        let tables: Vec<Vec<(f64, f64, f64)>> = (0..=n_max)
+            .map(|n| {
+                if n == 0 {
+                    return Vec::new();
+                }
+                let spacing = SPAN_SIGMAS * sigma_rad / n as f64;
+                gaussian_weights(n, spacing, sigma_rad)
+                    .into_iter()
+                    .enumerate()
+                    .map(|(s, w)| {
+                        let (sn, cs) = ((s as f64 - n as f64) * spacing).sin_cos();
+                        (w, sn, cs)
+                    })
+                    .collect()
+            })
+            .collect();
         dst.par_chunks_mut(ny * nz)
             .enumerate()
             .for_each(|(i, slab)| {
@@ -177,19 +218,14 @@ pub mod kernel {
                     let (rx, ry) = (c[0] - center_xy[0], c[1] - center_xy[1]);
                     let radius = rx.hypot(ry);
                     // Samples a cell apart along the arc at this radius.
-                    let n = ((SPAN_SIGMAS * sigma_rad * radius / voxel).ceil() as usize)
-                        .min(MAX_SAMPLES_PER_SIDE);
+                    let n = samples_per_side(sigma_rad * radius, voxel).min(n_max);
                     let start = (i * ny + j) * nz;
                     if n == 0 {
                         acc.copy_from_slice(&src[start..start + nz]);
                         continue;
                     }
-                    let spacing = SPAN_SIGMAS * sigma_rad / n as f64;
-                    let weights = gaussian_weights(n, spacing, sigma_rad);
                     acc.iter_mut().for_each(|a| *a = 0.0);
-                    for (s, &w) in weights.iter().enumerate() {
-                        let phi = (s as f64 - n as f64) * spacing;
-                        let (sn, cs) = phi.sin_cos();
+                    for &(w, sn, cs) in &tables[n] {
                         // Source of the value that the rotation by phi carries here.
                         let sx = center_xy[0] + cs * rx + sn * ry;
                         let sy = center_xy[1] - sn * rx + cs * ry;
