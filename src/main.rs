@@ -6,5 +6,13 @@ mod cmd;
 use clap::Parser;
 
 fn main() -> std::process::ExitCode {
+    // Like any Unix filter: `objloc inspect x.mcap | head` ends quietly when the reader goes
+    // away, instead of panicking on the write (Rust ignores SIGPIPE by default). Outputs are
+    // written to `.partial` files and renamed, so an early end never leaves a finished-looking
+    // file.
+    // SAFETY: called first thing in main, before any thread exists; SIG_DFL is a valid handler.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
     cmd::main(cmd::Cli::parse())
 }
