@@ -69,6 +69,18 @@ pub struct Match {
     pub truth_center_m: [f64; 3],
 }
 
+impl Match {
+    /// `chair: located at (x, y, z) m, true centre (x, y, z) m, error e m`.
+    pub fn describe(&self) -> String {
+        let [x, y, z] = self.centroid_m;
+        let [tx, ty, tz] = self.truth_center_m;
+        format!(
+            "{}: located at ({x:.3}, {y:.3}, {z:.3}) m, true centre ({tx:.3}, {ty:.3}, {tz:.3}) m, error {:.3} m",
+            self.name, self.error_m
+        )
+    }
+}
+
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct FrameEval {
     pub index: usize,

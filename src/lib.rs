@@ -28,6 +28,7 @@ pub mod output;
 pub mod refine;
 pub mod replay;
 pub mod report;
+pub mod rng;
 pub mod session;
 pub mod sim;
 pub mod tree;

@@ -232,7 +232,7 @@ fn eval_scores_reports_side_by_side() {
         ],
         &[],
     ));
-    assert!(text.contains("chair found at"), "{text}");
+    assert!(text.contains("chair: located at"), "{text}");
     assert!(text.contains("voxel IoU"), "{text}");
     assert!(text.contains("comparison:"), "{text}");
     assert_eq!(text.matches("frame   7:").count(), 2, "{text}");

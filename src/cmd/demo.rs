@@ -93,17 +93,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         let e = evaluate(&report_path.display().to_string(), &f.report, &truth);
         println!("== against ground truth");
         for m in &e.matches {
-            println!(
-                "{}: located at ({:.3}, {:.3}, {:.3}) m, true centre ({:.3}, {:.3}, {:.3}) m, error {:.3} m",
-                m.name,
-                m.centroid_m[0],
-                m.centroid_m[1],
-                m.centroid_m[2],
-                m.truth_center_m[0],
-                m.truth_center_m[1],
-                m.truth_center_m[2],
-                m.error_m
-            );
+            println!("{}", m.describe());
         }
         for n in &e.missed {
             println!("{n}: not found");

@@ -82,17 +82,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 fn print_eval(e: &Evaluation) {
     println!("{}:", e.report);
     for m in &e.matches {
-        println!(
-            "  {} found at ({:.3}, {:.3}, {:.3}), true centre ({:.3}, {:.3}, {:.3}): error {:.3} m",
-            m.name,
-            m.centroid_m[0],
-            m.centroid_m[1],
-            m.centroid_m[2],
-            m.truth_center_m[0],
-            m.truth_center_m[1],
-            m.truth_center_m[2],
-            m.error_m
-        );
+        println!("  {}", m.describe());
     }
     for name in &e.missed {
         println!("  missed: {name}");

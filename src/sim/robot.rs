@@ -17,32 +17,8 @@ pub const FRAME_GAP_NS: i64 = 500_000_000;
 /// Odometry rate while moving.
 pub const ODOM_PERIOD_NS: i64 = 100_000_000;
 
-/// SplitMix64: tiny, seedable, identical on every platform.
-#[derive(Debug, Clone)]
-pub struct Rng(u64);
-
-impl Rng {
-    pub fn new(seed: u64) -> Self {
-        Self(seed)
-    }
-    pub fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-    /// Uniform in (0, 1].
-    pub fn uniform(&mut self) -> f64 {
-        ((self.next_u64() >> 11) + 1) as f64 * (1.0 / (1u64 << 53) as f64)
-    }
-    /// Standard normal (Box-Muller, one value per call).
-    pub fn normal(&mut self) -> f64 {
-        let u1 = self.uniform();
-        let u2 = self.uniform();
-        (-2.0 * u1.ln()).sqrt() * (2.0 * PI * u2).cos()
-    }
-}
+/// The simulator's generator: seeded, identical on every platform.
+pub use crate::rng::SplitMix64 as Rng;
 
 /// A planar pose in odom: metres and radians.
 #[derive(Debug, Clone, Copy, PartialEq)]
