@@ -431,6 +431,8 @@ pub struct Fuser {
     heading_var_rad2: f64,
     position_var_m2: f64,
     evidence: Vec<f32>,
+    /// Cells the last [`Fuser::integrate`] updated.
+    pub last_cells_updated: usize,
 }
 
 impl Fuser {
@@ -449,6 +451,7 @@ impl Fuser {
             heading_var_rad2: 0.0,
             position_var_m2: 0.0,
             evidence: Vec::new(),
+            last_cells_updated: 0,
         })
     }
 
@@ -521,6 +524,16 @@ impl Fuser {
     }
 }
 
+/// A frame that will be fused: its reference, its /odom pose and its tile probabilities.
+struct Prepared {
+    frame: FrameRef,
+    odometry: Iso3,
+    probs: TileProbs,
+}
+
+/// Passes of localising every frame against the belief and fusing again, when refining.
+pub const REFINE_PASSES: usize = 3;
+
 /// Replays `reader` with `classifier` into a grid, telling `observers` each step.
 pub fn replay(
     reader: &SessionReader,
@@ -554,6 +567,79 @@ pub fn replay(
     };
     let spec = GridSpec::from_bounds(lo, hi, options.voxel_size_m)?;
     let prior = options.prior.unwrap_or_else(|| classifier.base_rate());
+    // Checked before the frames are read, so a bad option fails fast.
+    Fuser::new(spec, prior, options.clone())?;
+
+    // Every frame that can be fused, classified once.
+    let mut prepared: Vec<Prepared> = Vec::new();
+    for fr in &data.frames {
+        let at = || reader.at(Some(&fr.topic), fr.log_time_ns);
+        let Some(odometry) = data.odom_at(fr.stamp_ns) else {
+            warnings.push(format!(
+                "{}: no {} pose within 50 ms of stamp {}; frame skipped",
+                at(),
+                reader.topics().odom,
+                fmt_ns(fr.stamp_ns.max(0) as u64)
+            ));
+            continue;
+        };
+        if prepared
+            .last()
+            .is_some_and(|p| fr.stamp_ns < p.frame.stamp_ns)
+        {
+            warnings.push(format!(
+                "{}: frame stamp goes backwards; frame skipped",
+                at()
+            ));
+            continue;
+        }
+        let image = decode_frame(reader, &data, fr)?;
+        prepared.push(Prepared {
+            frame: fr.clone(),
+            odometry,
+            probs: classifier.classify(&image),
+        });
+    }
+    if prepared.is_empty() {
+        return Err(ReplayError::NothingFused {
+            path: data.path.clone(),
+            frames: data.frames.len(),
+        });
+    }
+
+    // Poses to fuse with: odometry, or odometry corrected against the belief.
+    let mut poses: Vec<Iso3> = prepared.iter().map(|p| p.odometry).collect();
+    let mut corrections: Vec<Option<Correction>> = vec![None; prepared.len()];
+    if options.refine_poses {
+        for _ in 0..REFINE_PASSES {
+            let grid = fuse_all(&data, &prepared, &poses, spec, prior, options)?;
+            for (k, p) in prepared.iter().enumerate().skip(1) {
+                let (var_yaw, var_xy) =
+                    pose_variance(&data, options, prepared[0].frame.stamp_ns, p.frame.stamp_ns);
+                let ev = TileEvidence::from_probabilities(
+                    p.probs.rows,
+                    p.probs.cols,
+                    p.probs.tile_px,
+                    &p.probs.p,
+                    grid.prior,
+                );
+                let c = refine(
+                    &grid,
+                    &options.objects,
+                    &data.camera,
+                    &data.base_from_camera,
+                    &p.odometry,
+                    &ev,
+                    var_yaw.sqrt(),
+                    var_xy.sqrt(),
+                );
+                poses[k] = c.apply(&p.odometry);
+                corrections[k] = Some(c);
+            }
+        }
+    }
+
+    // The replay proper, observed.
     let mut fuser = Fuser::new(spec, prior, options.clone())?;
     for o in observers.iter_mut() {
         o.on_start(&data, &fuser.grid)
@@ -566,114 +652,34 @@ pub fn replay(
                 what: format!("observer failed: {e:#}"),
             })?;
     }
-    let mut last_stamp: Option<i64> = None;
     let mut per_frame = Vec::new();
-    let mut fused = 0usize;
-    // odom -> corrected odom: what refinement has learnt of the odometry's drift so far.
-    let mut drift = Iso3::identity();
-    for fr in &data.frames {
+    for (index, p) in prepared.iter().enumerate() {
+        let fr = &p.frame;
         let at = || reader.at(Some(&fr.topic), fr.log_time_ns);
-        let Some(odometry) = data.odom_at(fr.stamp_ns) else {
-            warnings.push(format!(
-                "{}: no {} pose within 50 ms of stamp {}; frame skipped",
-                at(),
-                reader.topics().odom,
-                fmt_ns(fr.stamp_ns.max(0) as u64)
-            ));
-            continue;
-        };
-        if last_stamp.is_some_and(|prev| fr.stamp_ns < prev) {
-            warnings.push(format!(
-                "{}: frame stamp goes backwards; frame skipped",
-                at()
-            ));
-            continue;
-        }
-        let raw = &reader.raw_messages()[fr.raw_index];
-        let frame = match reader.decode(raw)?.map(|m| m.msg) {
-            Some(SessionMsg::Frame(f)) => f,
-            _ => continue,
-        };
-        let image = frame
-            .decode_rgb8()
-            .map_err(|what| ReplayError::Invalid { at: at(), what })?;
-        if (image.width, image.height) != (data.camera.width, data.camera.height) {
-            return Err(ReplayError::Invalid {
-                at: at(),
-                what: format!(
-                    "image is {} x {} but CameraInfo says {} x {}",
-                    image.width, image.height, data.camera.width, data.camera.height
-                ),
-            });
-        }
-        // Motion since the previous frame blurs the belief (nothing before the first one:
-        // the first frame anchors the belief).
-        let segments = match last_stamp {
-            Some(prev) => segments_between(&data.commands, prev, fr.stamp_ns),
-            None => Vec::new(),
-        };
-        for seg in &segments {
-            let pose = drift * data.odom_at(seg.start_ns).unwrap_or(odometry);
-            fuser.blur(seg, &pose);
-        }
-        let probs = classifier.classify(&image);
-        let predicted = drift * odometry;
-        let correction = (options.refine_poses && fused > 0).then(|| {
-            let (mut var_yaw, mut var_xy) = (0.0, 0.0);
-            for seg in &segments {
-                let t = seg.duration_s();
-                if seg.w_radps != 0.0 {
-                    var_yaw += (options.sigma_w_radps * t).powi(2);
-                }
-                if seg.v_mps != 0.0 {
-                    var_xy += (options.sigma_v_mps * t).powi(2);
-                }
-            }
-            let ev = TileEvidence::from_probabilities(
-                probs.rows,
-                probs.cols,
-                probs.tile_px,
-                &probs.p,
-                fuser.grid.prior,
-            );
-            refine(
-                &fuser.grid,
-                &options.objects,
-                &data.camera,
-                &data.base_from_camera,
-                &predicted,
-                &ev,
-                var_yaw.sqrt(),
-                var_xy.sqrt(),
-            )
-        });
-        let odom_from_base = match &correction {
-            Some(c) => c.apply(&predicted),
-            None => predicted,
-        };
-        drift = odom_from_base * odometry.inverse();
+        let odom_from_base = poses[index];
+        let segments = fuse_one(&mut fuser, &data, &prepared, &poses, index);
         let odom_from_camera = odom_from_base * data.base_from_camera;
-        let cells_updated =
-            fuser.integrate(&odom_from_camera, &odom_from_base, &data.camera, &probs);
-        last_stamp = Some(fr.stamp_ns);
-        let step = FrameStep {
-            index: fused,
-            frame: fr.clone(),
-            odom_from_camera,
-            odom_from_base,
-            odometry,
-            correction,
-            image,
-            probs,
-            segments,
-            cells_updated,
-        };
-        for o in observers.iter_mut() {
-            o.on_frame(&data, &step, &fuser.grid)
-                .map_err(|e| ReplayError::Invalid {
-                    at: at(),
-                    what: format!("observer failed: {e:#}"),
-                })?;
+        let cells_updated = fuser.last_cells_updated;
+        if !observers.is_empty() {
+            let step = FrameStep {
+                index,
+                frame: fr.clone(),
+                odom_from_camera,
+                odom_from_base,
+                odometry: p.odometry,
+                correction: corrections[index],
+                image: decode_frame(reader, &data, fr)?,
+                probs: p.probs.clone(),
+                segments,
+                cells_updated,
+            };
+            for o in observers.iter_mut() {
+                o.on_frame(&data, &step, &fuser.grid)
+                    .map_err(|e| ReplayError::Invalid {
+                        at: at(),
+                        what: format!("observer failed: {e:#}"),
+                    })?;
+            }
         }
         let objects = find_objects(&fuser.grid, &options.objects);
         let max_l = fuser
@@ -683,26 +689,19 @@ pub fn replay(
             .copied()
             .fold(f32::NEG_INFINITY, f32::max);
         let base = odom_from_base.translation.vector;
-        let odo = odometry.translation.vector;
+        let odo = p.odometry.translation.vector;
         per_frame.push(FrameSummary {
-            index: fused,
+            index,
             stamp_ns: fr.stamp_ns,
             log_time_ns: fr.log_time_ns,
             position_m: [base.x, base.y, base.z],
             yaw_rad: yaw_of(&odom_from_base),
             odom_position_m: [odo.x, odo.y, odo.z],
-            odom_yaw_rad: yaw_of(&odometry),
-            correction,
+            odom_yaw_rad: yaw_of(&p.odometry),
+            correction: corrections[index],
             cells_updated,
             max_probability: crate::grid::sigmoid(f64::from(max_l)),
             objects,
-        });
-        fused += 1;
-    }
-    if fused == 0 {
-        return Err(ReplayError::NothingFused {
-            path: data.path.clone(),
-            frames: data.frames.len(),
         });
     }
     let with_cells = find_objects_with_cells(&fuser.grid, &options.objects);
@@ -717,10 +716,117 @@ pub fn replay(
         object_cells,
         grid: fuser.grid,
         objects,
-        frames_fused: fused,
+        frames_fused: prepared.len(),
         per_frame,
         warnings,
     })
+}
+
+/// Decodes a frame and checks its size against CameraInfo.
+fn decode_frame(
+    reader: &SessionReader,
+    data: &SessionData,
+    fr: &FrameRef,
+) -> Result<Rgb8, ReplayError> {
+    let at = || reader.at(Some(&fr.topic), fr.log_time_ns);
+    let raw = &reader.raw_messages()[fr.raw_index];
+    let frame = match reader.decode(raw)?.map(|m| m.msg) {
+        Some(SessionMsg::Frame(f)) => f,
+        _ => {
+            return Err(ReplayError::Invalid {
+                at: at(),
+                what: "not a frame".into(),
+            });
+        }
+    };
+    let image = frame
+        .decode_rgb8()
+        .map_err(|what| ReplayError::Invalid { at: at(), what })?;
+    if (image.width, image.height) != (data.camera.width, data.camera.height) {
+        return Err(ReplayError::Invalid {
+            at: at(),
+            what: format!(
+                "image is {} x {} but CameraInfo says {} x {}",
+                image.width, image.height, data.camera.width, data.camera.height
+            ),
+        });
+    }
+    Ok(image)
+}
+
+/// Heading and position variance of the motion between two stamps, from the commands.
+fn pose_variance(
+    data: &SessionData,
+    options: &FuseOptions,
+    from_ns: i64,
+    to_ns: i64,
+) -> (f64, f64) {
+    let (mut var_yaw, mut var_xy) = (0.0, 0.0);
+    for seg in segments_between(&data.commands, from_ns, to_ns) {
+        let t = seg.duration_s();
+        if seg.w_radps != 0.0 {
+            var_yaw += (options.sigma_w_radps * t).powi(2);
+        }
+        if seg.v_mps != 0.0 {
+            var_xy += (options.sigma_v_mps * t).powi(2);
+        }
+    }
+    (var_yaw, var_xy)
+}
+
+/// Blurs by the motion since the previous prepared frame, then integrates frame `index` at
+/// `poses[index]`; returns the blurred segments.
+fn fuse_one(
+    fuser: &mut Fuser,
+    data: &SessionData,
+    prepared: &[Prepared],
+    poses: &[Iso3],
+    index: usize,
+) -> Vec<Segment> {
+    let p = &prepared[index];
+    let odom_from_base = poses[index];
+    // Motion since the previous frame blurs the belief (nothing before the first one: the
+    // first frame anchors the belief). Segment poses come from odometry, moved by this
+    // frame's correction.
+    let segments = match index.checked_sub(1) {
+        Some(prev) => segments_between(
+            &data.commands,
+            prepared[prev].frame.stamp_ns,
+            p.frame.stamp_ns,
+        ),
+        None => Vec::new(),
+    };
+    // Exactly the identity when the pose is the odometry, so that a replay without
+    // refinement is not perturbed by rounding.
+    let drift = if odom_from_base == p.odometry {
+        Iso3::identity()
+    } else {
+        odom_from_base * p.odometry.inverse()
+    };
+    for seg in &segments {
+        let pose = drift * data.odom_at(seg.start_ns).unwrap_or(p.odometry);
+        fuser.blur(seg, &pose);
+    }
+    let odom_from_camera = odom_from_base * data.base_from_camera;
+    fuser.last_cells_updated =
+        fuser.integrate(&odom_from_camera, &odom_from_base, &data.camera, &p.probs);
+    segments
+}
+
+/// Fuses every prepared frame at `poses`, unobserved: the belief refinement aligns to.
+fn fuse_all(
+    data: &SessionData,
+    prepared: &[Prepared],
+    poses: &[Iso3],
+    spec: GridSpec,
+    prior: f64,
+    options: &FuseOptions,
+) -> Result<Grid, ReplayError> {
+    let mut fuser = Fuser::new(spec, prior, options.clone())?;
+    for index in 0..prepared.len() {
+        fuse_one(&mut fuser, data, prepared, poses, index);
+    }
+    Ok(fuser.grid)
 }
 
 /// Position of a point of `odom` in the camera image at `odom_from_camera`, if in front.
