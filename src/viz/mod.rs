@@ -23,6 +23,9 @@ pub const APP_ID: &str = "objloc";
 
 /// Timeline of MCAP log times (a timestamp, ns since the epoch of the session's clock).
 pub const TIMELINE_LOG_TIME: &str = "log_time";
+/// Port of the web viewer `--serve` starts (re_web_viewer_server's default).
+pub const WEB_VIEWER_PORT: u16 = 9090;
+
 /// Timeline of fused frames (0, 1, 2, ...).
 pub const TIMELINE_FRAME: &str = "frame";
 
@@ -53,6 +56,12 @@ pub enum Target {
     Spawn,
     Connect(String),
     Stdout,
+    /// `--serve`: a gRPC server and the web viewer on this machine, kept up after the command
+    /// has logged everything until it is interrupted.
+    Serve {
+        bind: String,
+        memory_limit: String,
+    },
 }
 
 /// The standard Rerun flags ([`rerun::clap::RerunArgs`]) and where they send the recording:
@@ -86,6 +95,18 @@ fn target_from_matches(m: &clap::ArgMatches) -> Target {
         && let Some(p) = m.get_one::<PathBuf>("save")
     {
         return Target::Save(p.clone());
+    }
+    if given("serve") && m.get_flag("serve") {
+        return Target::Serve {
+            bind: m
+                .get_one::<String>("bind")
+                .cloned()
+                .unwrap_or_else(|| "0.0.0.0".into()),
+            memory_limit: m
+                .get_one::<String>("server_memory_limit")
+                .cloned()
+                .unwrap_or_else(|| "25%".into()),
+        };
     }
     if given("connect") {
         let url = m
@@ -154,6 +175,8 @@ pub struct VizStream {
     pub rec: RecordingStream,
     /// (partial, final) when saving to a file.
     file: Option<(PathBuf, PathBuf)>,
+    /// Serving the web viewer: [`VizStream::finish`] keeps the process up.
+    serving: bool,
 }
 
 impl std::fmt::Debug for VizStream {
@@ -222,10 +245,33 @@ pub fn open_stream(
         Target::Spawn => (builder.spawn()?, None),
         Target::Connect(url) => (builder.connect_grpc_opts(url.clone())?, None),
         Target::Stdout => (builder.stdout()?, None),
+        Target::Serve { bind, memory_limit } => {
+            let options = rerun::ServerOptions {
+                memory_limit: rerun::MemoryLimit::parse(memory_limit)
+                    .map_err(|e| VizError::Log(format!("bad --server-memory-limit: {e}")))?,
+                ..rerun::ServerOptions::default()
+            };
+            let rec = builder.serve_grpc_opts(bind, rerun::DEFAULT_SERVER_PORT, options)?;
+            rerun::serve_web_viewer(rerun::web_viewer::WebViewerConfig {
+                bind_ip: bind.clone(),
+                // The viewer's default port (9090); the type itself is not exported.
+                web_port: Default::default(),
+                open_browser: true,
+                connect_to: vec![format!(
+                    "rerun+http://localhost:{}/proxy",
+                    rerun::DEFAULT_SERVER_PORT
+                )],
+                ..Default::default()
+            })
+            .map_err(|e| VizError::Log(format!("cannot serve the web viewer: {e}")))?
+            .detach();
+            (rec, None)
+        }
     };
+    let serving = matches!(args.target, Target::Serve { .. });
     rec.set_log_time_enabled(false);
     rec.set_log_tick_enabled(false);
-    Ok(VizStream { rec, file })
+    Ok(VizStream { rec, file, serving })
 }
 
 impl VizStream {
@@ -245,6 +291,17 @@ impl VizStream {
         self.rec
             .flush_blocking()
             .map_err(|e| VizError::Flush(e.to_string()))?;
+        if self.serving {
+            // As rerun's own `--serve`: the viewer needs the server alive after the last log.
+            eprintln!(
+                "serving the web viewer at http://localhost:{} (data: rerun+http://localhost:{}/proxy); press Ctrl-C when done",
+                WEB_VIEWER_PORT,
+                rerun::DEFAULT_SERVER_PORT
+            );
+            loop {
+                std::thread::park();
+            }
+        }
         // Dropping the last handle closes the file sink, which writes the footer and joins
         // its writer thread; only then is the file complete.
         drop(self.rec);
