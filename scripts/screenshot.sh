@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Screenshot of the demo recording in the real Rerun web viewer, for docs/img/demo.png.
 #
-# Usage: scripts/screenshot.sh [FILE.rrd] [OUT.png]   (defaults: demo/demo.rrd, docs/img/demo.png)
+# Usage: scripts/screenshot.sh [FILE.rrd] [OUT.png]   (defaults: out/demo/report.rrd from `objloc demo`, docs/img/demo.png)
 # Installs what it needs: Debian `chromium` (apt-get) when /usr/bin/chromium is missing,
 # `playwright-core` (npm) into target/screenshot/, and uses the pinned rerun-sdk of the test
 # venv (target/pyenv, created by `cargo test --release --test viz` or tests/interop.rs).
@@ -10,7 +10,7 @@
 # render, and saves the page. Not part of CI: it needs network for the first install.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-RRD="${1:-demo/demo.rrd}"
+RRD="${1:-out/demo/report.rrd}"
 OUT="${2:-docs/img/demo.png}"
 WAIT_MS="${WAIT_MS:-45000}"  # the software rasterizer needs ~40 s to load and lay out
 PYENV="${OBJLOC_PYENV:-target/pyenv}"
