@@ -161,13 +161,32 @@ impl SessionReader {
                     self.take_record(record, &mut schemas)?;
                     self.bytes_intact = cursor as u64;
                 }
-                Err(McapError::UnexpectedEof) | Err(McapError::UnexpectedEoc) => {
+                // Running out of data (`UnexpectedEof`, or `UnexpectedEoc` when a chunk's
+                // compressed stream stops short) is truncation only if the file lacks its closing
+                // magic. A file that still ends with it was written to the end, so the cause is a
+                // damaged length field: reading that as truncation would drop every later chunk
+                // under a false warning.
+                Err(source @ (McapError::UnexpectedEof | McapError::UnexpectedEoc))
+                    if buf.len() >= 2 * MCAP_MAGIC.len() && buf.ends_with(MCAP_MAGIC) =>
+                {
+                    return Err(SessionError::Mcap {
+                        at: self.at_last(),
+                        what: format!(
+                            "damaged data after byte {} (after the message named here; the file ends with the MCAP magic, so it is not truncated)",
+                            self.bytes_intact
+                        ),
+                        source,
+                    });
+                }
+                Err(McapError::UnexpectedEof | McapError::UnexpectedEoc) => {
                     let at = self.at_last();
+                    // The warning names the file: commands print it beside other files' warnings.
                     self.warnings.push(format!(
-                        "file is truncated: read {} messages from the first {} of {} bytes; the rest is lost (last intact message: {})",
+                        "file is truncated: read {} messages from the first {} of {} bytes of {}; the rest is lost (last intact message: {})",
                         self.messages.len(),
                         self.bytes_intact,
                         self.file_len,
+                        self.path.display(),
                         match (at.topic, at.log_time_ns) {
                             (Some(t), Some(ns)) => format!("{t} at {}", super::fmt_ns(ns)),
                             _ => "none".to_owned(),
