@@ -47,7 +47,7 @@ impl Observer for RssProbe {
         _grid: &Grid,
     ) -> anyhow::Result<()> {
         let frames = step.index + 1;
-        if frames % EVERY_FRAMES == 0 {
+        if frames.is_multiple_of(EVERY_FRAMES) {
             let (rss, hwm) = rss_mib();
             self.samples.push((frames, rss, hwm));
         }
