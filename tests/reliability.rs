@@ -186,6 +186,9 @@ fn model() -> &'static Path {
             dir.join("train.rrd").as_os_str(),
         ]);
         assert_eq!(run.code, Some(0), "{}", run.stderr);
+        // The model (11 kB) outlives the test process in the temp dir; its recording (MBs)
+        // is not needed.
+        let _ = std::fs::remove_file(dir.join("train.rrd"));
         model
     })
 }
