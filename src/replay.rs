@@ -63,8 +63,12 @@ pub enum ReplayError {
     Session(#[from] SessionError),
     #[error("{at}: {what}")]
     Invalid { at: At, what: String },
-    #[error("grid: {0}")]
-    Grid(#[from] GridError),
+    #[error("{path}: grid: {source}")]
+    Grid {
+        path: String,
+        #[source]
+        source: GridError,
+    },
     #[error(
         "{path}: no frame could be fused ({frames} frame(s) in the session, none with a pose and camera)"
     )]
@@ -565,10 +569,14 @@ pub fn replay(
                 frames: data.frames.len(),
             })?,
     };
-    let spec = GridSpec::from_bounds(lo, hi, options.voxel_size_m)?;
+    let grid_err = |source| ReplayError::Grid {
+        path: data.path.clone(),
+        source,
+    };
+    let spec = GridSpec::from_bounds(lo, hi, options.voxel_size_m).map_err(grid_err)?;
     let prior = options.prior.unwrap_or_else(|| classifier.base_rate());
     // Checked before the frames are read, so a bad option fails fast.
-    Fuser::new(spec, prior, options.clone())?;
+    Fuser::new(spec, prior, options.clone()).map_err(grid_err)?;
 
     // Every frame that can be fused, classified once.
     let mut prepared: Vec<Prepared> = Vec::new();
@@ -640,7 +648,7 @@ pub fn replay(
     }
 
     // The replay proper, observed.
-    let mut fuser = Fuser::new(spec, prior, options.clone())?;
+    let mut fuser = Fuser::new(spec, prior, options.clone()).map_err(grid_err)?;
     for o in observers.iter_mut() {
         o.on_start(&data, &fuser.grid)
             .map_err(|e| ReplayError::Invalid {
@@ -822,7 +830,11 @@ fn fuse_all(
     prior: f64,
     options: &FuseOptions,
 ) -> Result<Grid, ReplayError> {
-    let mut fuser = Fuser::new(spec, prior, options.clone())?;
+    let mut fuser =
+        Fuser::new(spec, prior, options.clone()).map_err(|source| ReplayError::Grid {
+            path: data.path.clone(),
+            source,
+        })?;
     for index in 0..prepared.len() {
         fuse_one(&mut fuser, data, prepared, poses, index);
     }

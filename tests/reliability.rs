@@ -173,7 +173,9 @@ fn outputs_in(dir: &Path, inputs: &[&Path]) -> Vec<String> {
 fn model() -> &'static Path {
     static MODEL: OnceLock<PathBuf> = OnceLock::new();
     MODEL.get_or_init(|| {
-        let dir = std::env::temp_dir().join(format!("objloc-reliability-{}", std::process::id()));
+        // Cargo's scratch space for integration tests (under target/), not the system /tmp.
+        let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR"))
+            .join(format!("reliability-{}", std::process::id()));
         std::fs::create_dir_all(&dir).expect("model dir");
         let model = dir.join("chair-model.json");
         let train = repo().join("recordings/chair-train.mcap");

@@ -83,7 +83,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         &args.rerun,
         &objloc::viz::rrd_beside(&report_path),
     )
-    .with_context(|| format!("demo: fuse {}", tour_path.display()))?;
+    .context("demo: fuse")?;
     print_summary(&f);
     let grid_path = args.out.join("grid.npy");
     write_outputs(&f, Some(&report_path), Some(&grid_path))?;

@@ -276,7 +276,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         &args.rerun,
         &default_rrd,
     )
-    .with_context(|| format!("fuse {}", args.session.display()))?;
+    .context("fuse")?;
     print_summary(&f);
     write_outputs(&f, args.report.as_deref(), args.grid.as_deref())?;
     let t = &f.report.timing_ms;
