@@ -54,14 +54,7 @@ fn chair_tour() {
         true,
     )
     .unwrap();
-    let cfg = TrainConfig {
-        features: objloc::features::FeatureKind::Rgb332,
-        tile_px: 8,
-        train_stride_px: 4,
-        seed: 0,
-        object: None,
-        tree: objloc::tree::TreeParams::default(),
-    };
+    let cfg = TrainConfig::default();
     let sessions = [train];
     let set = examples(&sessions, &cfg).unwrap();
     let model = fit_model(&sessions, &set, &cfg).unwrap();

@@ -84,14 +84,7 @@ fn main() -> anyhow::Result<()> {
         None,
         true,
     )?;
-    let cfg = TrainConfig {
-        features: objloc::features::FeatureKind::Rgb332,
-        tile_px: 8,
-        train_stride_px: 4,
-        seed: 0,
-        object: None,
-        tree: objloc::tree::TreeParams::default(),
-    };
+    let cfg = TrainConfig::default();
     let sessions = [train];
     let set = examples(&sessions, &cfg)?;
     let model = fit_model(&sessions, &set, &cfg)?;

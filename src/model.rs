@@ -482,6 +482,21 @@ pub struct TrainConfig {
     pub tree: TreeParams,
 }
 
+/// The defaults of `objloc train`: rgb332 features (they fuse best, docs/fuser.md), 8 px
+/// tiles, shifted grids every 4 px, seed 0, every label.
+impl Default for TrainConfig {
+    fn default() -> Self {
+        Self {
+            features: FeatureKind::Rgb332,
+            tile_px: 8,
+            train_stride_px: 4,
+            seed: 0,
+            object: None,
+            tree: TreeParams::default(),
+        }
+    }
+}
+
 impl TrainConfig {
     pub fn example_params(&self) -> ExampleParams {
         ExampleParams {

@@ -8,9 +8,7 @@ use anyhow::Context;
 
 use objloc::dataset::load_session;
 use objloc::eval::{evaluate, true_objects};
-use objloc::features::FeatureKind;
 use objloc::model::{TrainConfig, examples, fit_model};
-use objloc::tree::TreeParams;
 
 use super::TopicArgs;
 use super::fuse::{FuseArgs, fuse, print_summary, write_outputs};
@@ -56,14 +54,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let topics = args.topics.topics()?;
 
     println!("== training on {}", train_path.display());
-    let cfg = TrainConfig {
-        features: FeatureKind::Rgb332,
-        tile_px: 8,
-        train_stride_px: 4,
-        seed: 0,
-        object: None,
-        tree: TreeParams::default(),
-    };
+    let cfg = TrainConfig::default();
     let session = load_session(&train_path, topics.clone(), None, true)
         .with_context(|| format!("demo: reading {}", train_path.display()))?;
     let sessions = [session];
