@@ -99,6 +99,55 @@ pub struct Evaluation {
     pub spurious: Vec<[f64; 3]>,
     pub voxel_iou: f64,
     pub per_frame: Vec<FrameEval>,
+    /// Trajectory error at the fused frames, when the session has true poses.
+    pub trajectory: Option<TrajectoryError>,
+}
+
+/// Absolute trajectory error (TUM RGB-D style RMSE of positions) at the fused frames, of the
+/// /odom poses and of the poses the frames were fused with (the same unless refined). No
+/// alignment: odometry and truth share `odom`, where both start at the same pose.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TrajectoryError {
+    pub frames: usize,
+    pub odometry_ate_m: f64,
+    pub fused_ate_m: f64,
+    /// Largest position error of /odom at a frame.
+    pub odometry_max_m: f64,
+}
+
+/// Position of the true track at `stamp_ns` (exact stamp, or the nearest within 50 ms).
+fn truth_at(truth: &[(i64, [f64; 3])], stamp_ns: i64) -> Option<[f64; 3]> {
+    let i = truth.partition_point(|(t, _)| *t < stamp_ns);
+    [i.checked_sub(1), Some(i)]
+        .into_iter()
+        .flatten()
+        .filter_map(|j| truth.get(j))
+        .filter(|(t, _)| (t - stamp_ns).abs() <= 50_000_000)
+        .min_by_key(|(t, _)| (t - stamp_ns).abs())
+        .map(|(_, p)| *p)
+}
+
+/// The trajectory error of `report`'s frames against `truth` (stamp-sorted true positions).
+pub fn trajectory_error(report: &Report, truth: &[(i64, [f64; 3])]) -> Option<TrajectoryError> {
+    let pairs: Vec<(f64, f64)> = report
+        .per_frame
+        .iter()
+        .filter_map(|f| {
+            let t = truth_at(truth, f.stamp_ns)?;
+            Some((dist(f.odom_position_m, t), dist(f.position_m, t)))
+        })
+        .collect();
+    if pairs.is_empty() {
+        return None;
+    }
+    let n = pairs.len() as f64;
+    let rmse = |sq: f64| (sq / n).sqrt();
+    Some(TrajectoryError {
+        frames: pairs.len(),
+        odometry_ate_m: rmse(pairs.iter().map(|p| p.0 * p.0).sum()),
+        fused_ate_m: rmse(pairs.iter().map(|p| p.1 * p.1).sum()),
+        odometry_max_m: pairs.iter().map(|p| p.0).fold(0.0, f64::max),
+    })
 }
 
 impl Evaluation {
@@ -173,7 +222,14 @@ pub fn voxel_iou(spec: &GridSpec, estimated: &[usize], truth: &[TrueObject]) -> 
     }
 }
 
-pub fn evaluate(report_name: &str, report: &Report, truth: &[TrueObject]) -> Evaluation {
+/// Scores `report` against the true boxes and, when given, the true track (stamp-sorted
+/// positions of base_link in odom).
+pub fn evaluate(
+    report_name: &str,
+    report: &Report,
+    truth: &[TrueObject],
+    truth_track: &[(i64, [f64; 3])],
+) -> Evaluation {
     let (matches, missed, spurious) = match_objects(&report.objects, truth);
     let spec = GridSpec {
         origin_m: report.grid.origin_m,
@@ -207,6 +263,7 @@ pub fn evaluate(report_name: &str, report: &Report, truth: &[TrueObject]) -> Eva
             .collect(),
         voxel_iou: voxel_iou(&spec, &report.object_cells, truth),
         per_frame,
+        trajectory: trajectory_error(report, truth_track),
     }
 }
 
@@ -282,5 +339,63 @@ mod tests {
         assert_eq!(inside.len(), 64);
         assert_eq!(voxel_iou(&spec, &inside, &truth), 1.0);
         assert_eq!(voxel_iou(&spec, &inside[..32], &truth), 0.5);
+    }
+
+    #[test]
+    fn trajectory_error_is_the_rmse_at_the_frames() {
+        use crate::replay::{FrameSummary, FuseOptions};
+        use crate::report::{GridReport, Report};
+        let frame = |index: usize, stamp_ns: i64, odom: [f64; 3], used: [f64; 3]| FrameSummary {
+            index,
+            stamp_ns,
+            log_time_ns: stamp_ns as u64,
+            position_m: used,
+            yaw_rad: 0.0,
+            odom_position_m: odom,
+            odom_yaw_rad: 0.0,
+            correction: None,
+            cells_updated: 0,
+            max_probability: 0.5,
+            objects: Vec::new(),
+        };
+        let report = Report {
+            report_version: 1,
+            objloc_version: "test".into(),
+            session: "s".into(),
+            session_sha256: String::new(),
+            model: "m".into(),
+            model_sha256: String::new(),
+            frames: 3,
+            frames_in_session: 3,
+            options: FuseOptions::default(),
+            grid: GridReport {
+                dims: [1, 1, 1],
+                voxel_size_m: 0.04,
+                origin_m: [0.0; 3],
+                prior: 0.01,
+                sha256: String::new(),
+            },
+            objects: Vec::new(),
+            object_cells: Vec::new(),
+            per_frame: vec![
+                frame(0, 1_000_000_000, [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]),
+                frame(1, 2_000_000_000, [1.3, 0.0, 0.0], [1.0, 0.4, 0.0]),
+                // No true pose within 50 ms: not counted.
+                frame(2, 2_900_000_000, [9.0, 9.0, 0.0], [9.0, 9.0, 0.0]),
+            ],
+            warnings: Vec::new(),
+            timing_ms: Default::default(),
+        };
+        let truth = vec![
+            (1_000_000_000, [0.0, 0.0, 0.0]),
+            (2_040_000_000, [1.0, 0.0, 0.0]),
+        ];
+        let t = trajectory_error(&report, &truth).unwrap();
+        assert_eq!(t.frames, 2);
+        // /odom errors 0 and 0.3: RMSE sqrt(0.09 / 2); fused errors 0 and 0.4: sqrt(0.16 / 2).
+        assert!((t.odometry_ate_m - (0.09f64 / 2.0).sqrt()).abs() < 1e-12);
+        assert!((t.fused_ate_m - (0.16f64 / 2.0).sqrt()).abs() < 1e-12);
+        assert!((t.odometry_max_m - 0.3).abs() < 1e-12);
+        assert!(trajectory_error(&report, &[]).is_none());
     }
 }

@@ -235,6 +235,7 @@ fn eval_scores_reports_side_by_side() {
     assert!(text.contains("chair: located at"), "{text}");
     assert!(text.contains("voxel IoU"), "{text}");
     assert!(text.contains("comparison:"), "{text}");
+    assert!(text.contains("trajectory at 8 frames: /odom ATE"), "{text}");
     assert_eq!(text.matches("frame   7:").count(), 2, "{text}");
     // JSON: one evaluation per report, per-frame errors for all 8 frames.
     let json = ok(&objloc(
@@ -251,6 +252,12 @@ fn eval_scores_reports_side_by_side() {
     assert_eq!(v[0]["per_frame"].as_array().unwrap().len(), 8);
     assert_eq!(v[0]["matches"].as_array().unwrap().len(), 1);
     assert!(v[0]["voxel_iou"].as_f64().unwrap() > 0.0);
+    // The shipped tour's odometry drifts (recordings/README.md): a real, non-zero ATE, and
+    // without refinement the fused poses are the odometry's.
+    let t = &v[0]["trajectory"];
+    let ate = t["odometry_ate_m"].as_f64().unwrap();
+    assert!(ate > 0.01 && ate < 0.5, "{t}");
+    assert_eq!(t["fused_ate_m"], t["odometry_ate_m"]);
 }
 
 #[test]

@@ -81,7 +81,19 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 
     if let Some(gt) = &f.outcome.data.ground_truth {
         let truth = true_objects(gt);
-        let e = evaluate(&report_path.display().to_string(), &f.report, &truth);
+        let track: Vec<(i64, [f64; 3])> = f
+            .outcome
+            .data
+            .ground_truth_poses
+            .iter()
+            .map(|(t, p)| (*t, p.translation.vector.into()))
+            .collect();
+        let e = evaluate(
+            &report_path.display().to_string(),
+            &f.report,
+            &truth,
+            &track,
+        );
         println!("== against ground truth");
         for m in &e.matches {
             println!("{}", m.describe());
@@ -102,6 +114,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             })
             .collect();
         println!("error after each frame (m): {}", errs.join(" "));
+        if let Some(t) = &e.trajectory {
+            println!(
+                "odometry drift: ATE {:.3} m over {} frames (max {:.3} m): what limits the error above",
+                t.odometry_ate_m, t.frames, t.odometry_max_m
+            );
+        }
     }
     println!(
         "wrote {}, {}, {}",

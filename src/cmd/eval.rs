@@ -29,11 +29,15 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let reader = SessionReader::open(&args.session, args.topics.topics()?)
         .with_context(|| format!("eval {}", args.session.display()))?;
     let mut gt = None;
+    let mut track: Vec<(i64, [f64; 3])> = Vec::new();
     for m in reader.messages() {
-        if let SessionMsg::GroundTruthObjects(g) = m.context("reading ground truth")?.msg {
-            gt = Some(g);
+        match m.context("reading ground truth")?.msg {
+            SessionMsg::GroundTruthObjects(g) => gt = Some(g),
+            SessionMsg::GroundTruthPose(p) => track.push((p.header.stamp_ns, p.pose.position)),
+            _ => {}
         }
     }
+    track.sort_by_key(|(t, _)| *t);
     let gt = gt.with_context(|| {
         format!(
             "{}: no {} message: this session has no ground truth to score against",
@@ -48,7 +52,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
         let report: Report = serde_json::from_str(&text)
             .with_context(|| format!("{}: not an objloc fuse report", path.display()))?;
-        evals.push(evaluate(&path.display().to_string(), &report, &truth));
+        evals.push(evaluate(
+            &path.display().to_string(),
+            &report,
+            &truth,
+            &track,
+        ));
     }
     if args.json {
         println!("{}", serde_json::to_string_pretty(&evals)?);
@@ -94,6 +103,12 @@ fn print_eval(e: &Evaluation) {
         );
     }
     println!("  voxel IoU of the thresholded belief: {:.3}", e.voxel_iou);
+    if let Some(t) = &e.trajectory {
+        println!(
+            "  trajectory at {} frames: /odom ATE {:.3} m (max {:.3} m), poses fused with ATE {:.3} m",
+            t.frames, t.odometry_ate_m, t.odometry_max_m, t.fused_ate_m
+        );
+    }
     println!("  after each frame:");
     for f in &e.per_frame {
         println!(
