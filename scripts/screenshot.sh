@@ -26,9 +26,11 @@ fi
 mkdir -p "$(dirname "$OUT")"
 PORT_WEB="${PORT_WEB:-9190}"
 PORT_GRPC="${PORT_GRPC:-9976}"
-"$PYENV/bin/rerun" --web-viewer --web-viewer-port "$PORT_WEB" --port "$PORT_GRPC" "$RRD" >target/screenshot/rerun.log 2>&1 &
+# In its own process group: the Python entry point starts the viewer binary as a child, and
+# both must go when the script ends (a leftover server would also answer the next run).
+setsid "$PYENV/bin/rerun" --web-viewer --web-viewer-port "$PORT_WEB" --port "$PORT_GRPC" "$RRD" >target/screenshot/rerun.log 2>&1 &
 RERUN_PID=$!
-trap 'kill $RERUN_PID 2>/dev/null || true' EXIT
+trap 'kill -- -$RERUN_PID 2>/dev/null || true' EXIT
 for _ in $(seq 1 60); do
   curl -s -o /dev/null "http://127.0.0.1:$PORT_WEB/" && break
   sleep 0.5

@@ -474,8 +474,8 @@ impl FuseViz {
 
         scalar(rec, "plots/max_posterior", s.max_posterior)?;
         scalar(rec, "plots/mean_entropy_bits", s.mean_entropy_bits)?;
-        scalar(rec, "plots/cells_updated", step.cells_updated as f64)?;
-        scalar(rec, "plots/objects", objects.len() as f64)?;
+        scalar(rec, "counts/cells_updated", step.cells_updated as f64)?;
+        scalar(rec, "counts/objects", objects.len() as f64)?;
         if let Some(e) = centroid_error_m(&objects, data) {
             scalar(rec, "plots/centroid_error_m", e)?;
         }

@@ -374,7 +374,10 @@ pub fn fuse_blueprint() -> rerun::blueprint::Blueprint {
     let px = Spatial2DView::new("mean posterior along x").with_origin("/projections/x");
     let py = Spatial2DView::new("mean posterior along y").with_origin("/projections/y");
     let pz = Spatial2DView::new("mean posterior along z").with_origin("/projections/z");
+    // Probabilities, entropy and errors share one axis; the counts (hundreds of thousands of
+    // cells) get their own, or they flatten everything else.
     let plots = TimeSeriesView::new("plots").with_origin("/plots");
+    let counts = TimeSeriesView::new("counts").with_origin("/counts");
     Blueprint::new(
         Vertical::new([
             Horizontal::new([
@@ -383,7 +386,13 @@ pub fn fuse_blueprint() -> rerun::blueprint::Blueprint {
             ])
             .with_column_shares([0.6, 0.4])
             .into(),
-            Horizontal::new([px.into(), py.into(), pz.into(), plots.into()]).into(),
+            Horizontal::new([
+                px.into(),
+                py.into(),
+                pz.into(),
+                Vertical::new([plots.into(), counts.into()]).into(),
+            ])
+            .into(),
         ])
         .with_row_shares([0.65, 0.35]),
     )
