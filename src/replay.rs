@@ -375,6 +375,8 @@ pub struct FrameStep {
     pub probs: TileProbs,
     /// Commands blurred into the belief before this frame.
     pub segments: Vec<Segment>,
+    /// Objects found after this frame (the fuse's own rule).
+    pub objects: Vec<Object>,
     pub cells_updated: usize,
 }
 
@@ -668,6 +670,7 @@ pub fn replay(
         let segments = fuse_one(&mut fuser, &data, &prepared, &poses, index);
         let odom_from_camera = odom_from_base * data.base_from_camera;
         let cells_updated = fuser.last_cells_updated;
+        let objects = find_objects(&fuser.grid, &options.objects);
         if !observers.is_empty() {
             let step = FrameStep {
                 index,
@@ -680,6 +683,7 @@ pub fn replay(
                 probs: p.probs.clone(),
                 segments,
                 cells_updated,
+                objects: objects.clone(),
             };
             for o in observers.iter_mut() {
                 o.on_frame(&data, &step, &fuser.grid)
@@ -689,7 +693,6 @@ pub fn replay(
                     })?;
             }
         }
-        let objects = find_objects(&fuser.grid, &options.objects);
         let max_l = fuser
             .grid
             .log_odds

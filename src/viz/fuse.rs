@@ -13,7 +13,7 @@ use rerun::RecordingStream;
 use super::{TIMELINE_FRAME, TIMELINE_LOG_TIME, VizError, log_err, viridis};
 use crate::geometry::{Camera, Iso3, iso_from_pose};
 use crate::grid::{Grid, sigmoid};
-use crate::objects::{Object, ObjectParams, find_objects};
+use crate::objects::Object;
 use crate::replay::{FrameStep, Observer, SessionData, TileProbs};
 use crate::session::Rgb8;
 
@@ -28,8 +28,6 @@ pub struct VizOptions {
     pub pyramid_min_p: f32,
     /// Length of the drawn pyramids along the optical axis, metres.
     pub pyramid_depth_m: f64,
-    /// How `world/objects/estimated` is found each frame (use the fuse's own parameters).
-    pub objects: ObjectParams,
 }
 
 impl Default for VizOptions {
@@ -39,7 +37,6 @@ impl Default for VizOptions {
             grid_min_views: 2,
             pyramid_min_p: 0.5,
             pyramid_depth_m: 3.0,
-            objects: ObjectParams::default(),
         }
     }
 }
@@ -440,7 +437,7 @@ impl FuseViz {
         projection(rec, "projections/y", &s.along_y, nx, nz)?;
         projection(rec, "projections/z", &s.along_z, nx, ny)?;
 
-        let objects = find_objects(grid, &o.objects);
+        let objects = &step.objects;
         let boxes = rerun::Boxes3D::from_mins_and_sizes(
             objects.iter().map(|b| b.bbox_min_m.map(|x| x as f32)),
             objects
@@ -476,7 +473,7 @@ impl FuseViz {
         scalar(rec, "plots/mean_entropy_bits", s.mean_entropy_bits)?;
         scalar(rec, "counts/cells_updated", step.cells_updated as f64)?;
         scalar(rec, "counts/objects", objects.len() as f64)?;
-        if let Some(e) = centroid_error_m(&objects, data) {
+        if let Some(e) = centroid_error_m(objects, data) {
             scalar(rec, "plots/centroid_error_m", e)?;
         }
         Ok(())
