@@ -16,6 +16,7 @@ use crate::grid::{Grid, sigmoid};
 use crate::objects::Object;
 use crate::replay::{FrameStep, Observer, SessionData, TileProbs};
 use crate::session::Rgb8;
+use rayon::prelude::*;
 
 /// What the fuse stream shows.
 #[derive(Debug, Clone, PartialEq)]
@@ -86,14 +87,23 @@ pub fn summarize_grid(grid: &Grid, min_posterior: f32, min_views: u16) -> GridSu
     let mut cells = Vec::new();
     let mut max_l = f32::NEG_INFINITY;
     let mut entropy = 0.0;
+    // The transcendental part in parallel, per cell; the sums below stay sequential in index
+    // order, so the result does not depend on the thread count.
+    let p_h: Vec<(f64, f64)> = grid
+        .log_odds
+        .par_iter()
+        .map(|&l| {
+            let p = sigmoid(f64::from(l));
+            (p, binary_entropy_bits(p))
+        })
+        .collect();
     for i in 0..nx {
         for j in 0..ny {
             for k in 0..nz {
                 let idx = grid.spec.index(i, j, k);
-                let l = grid.log_odds[idx];
-                max_l = max_l.max(l);
-                let p = sigmoid(f64::from(l));
-                entropy += binary_entropy_bits(p);
+                max_l = max_l.max(grid.log_odds[idx]);
+                let (p, h) = p_h[idx];
+                entropy += h;
                 let (rz, ry) = (nz - 1 - k, ny - 1 - j);
                 along_x[rz * ny + j] += p;
                 along_y[rz * nx + i] += p;
