@@ -86,6 +86,26 @@ fn chair_tour() {
         streamed / plain,
         size as f64 / 1e6
     );
+    // Pose refinement against the plain replay of the same session (the drift tour).
+    let drift = SessionReader::open(
+        &root.join("recordings/chair-tour-drift.mcap"),
+        Topics::default(),
+    )
+    .unwrap();
+    let plain = median_ms(7, || {
+        black_box(replay(&drift, &model, &options, &mut []).unwrap());
+    });
+    let refining = FuseOptions {
+        refine_poses: true,
+        ..options.clone()
+    };
+    let refined = median_ms(7, || {
+        black_box(replay(&drift, &model, &refining, &mut []).unwrap());
+    });
+    println!(
+        "drift tour (8 frames): replay {plain:.1} ms; with --refine-poses {refined:.1} ms ({:.2}x)",
+        refined / plain
+    );
 }
 
 fn main() {

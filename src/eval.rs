@@ -94,6 +94,8 @@ pub struct FrameEval {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Evaluation {
     pub report: String,
+    /// Where the report's frame poses came from: "odometry", "refined" or "ground-truth".
+    pub poses: String,
     pub matches: Vec<Match>,
     pub missed: Vec<String>,
     pub spurious: Vec<[f64; 3]>,
@@ -253,8 +255,15 @@ pub fn evaluate(
             }
         })
         .collect();
+    let poses = match (report.options.poses, report.options.refine_poses) {
+        (crate::replay::PoseSource::GroundTruth, false) => "ground-truth",
+        (crate::replay::PoseSource::GroundTruth, true) => "ground-truth, refined",
+        (crate::replay::PoseSource::Odometry, false) => "odometry",
+        (crate::replay::PoseSource::Odometry, true) => "refined",
+    };
     Evaluation {
         report: report_name.to_owned(),
+        poses: poses.to_owned(),
         matches,
         missed: missed.iter().map(|&t| truth[t].name.clone()).collect(),
         spurious: spurious

@@ -54,6 +54,16 @@ pub fn yaw_of(iso: &Iso3) -> f64 {
     m[(1, 0)].atan2(m[(0, 0)])
 }
 
+/// An angle wrapped into (-pi, pi].
+pub fn wrap_angle(a: f64) -> f64 {
+    let w = a.rem_euclid(2.0 * std::f64::consts::PI);
+    if w > std::f64::consts::PI {
+        w - 2.0 * std::f64::consts::PI
+    } else {
+        w
+    }
+}
+
 /// The `base_link -> camera_optical_frame` mount: camera at `position` in base_link, looking
 /// along base_link +x, pitched down by `pitch_down_rad`.
 pub fn camera_mount(position: [f64; 3], pitch_down_rad: f64) -> Iso3 {

@@ -1,29 +1,80 @@
-//! Pose refinement: localise each frame against the belief before fusing it (Markov
-//! localisation, which the paper points to, restricted to a window around odometry).
+//! Pose refinement: before a frame is fused, localise it against what earlier frames saw
+//! (Markov localisation, which the paper points to, in a window around the prediction).
 //!
-//! The candidate poses are planar corrections (dx, dy, dyaw) of the robot pose predicted by
-//! odometry. Each is scored by its log prior under the motion model (Gaussian with the spread
-//! the commands since the last frame imply) plus how well the frame's tile evidence agrees
-//! with the belief: the belief-weighted mean of the evidence of the tiles the strongest cells
-//! project into. The search is a fixed coarse grid followed by finer grids around the best
-//! candidate, so it is deterministic; candidates are scored in parallel and the best is
-//! chosen by (score, candidate index), so the result does not depend on the thread count.
+//! The prediction is the previous frame's refined pose moved by the odometry increment since,
+//! so a correction carries forward as in any localiser; the first frame anchors the frame of
+//! reference. Candidates are planar corrections (dx, dy, dyaw) of the prediction, each scored
+//! by
 //!
-//! Invariants: pure function of its inputs, no I/O; with an empty belief (nothing to align
-//! to) the correction is zero.
+//! * the motion model: a Gaussian whose covariance is propagated through the commands since
+//!   the previous frame (speed error sigma_v * t along the heading, turn error sigma_w * t,
+//!   and the sideways error a heading error causes on later translations), times
+//! * the likelihood of the frame's detections given the landmarks: each object of the belief
+//!   is a landmark, placed where the rays through its detections in earlier frames meet; a
+//!   candidate pose predicts where each landmark appears in this frame, and the detection
+//!   seen there is Gaussian about that point.
+//!
+//! Why landmarks triangulated from detections and not the belief's cells: measured on the
+//! shipped tours with true poses, the centroid of an object's detections in each view is the
+//! projection of one 3D point to within 1-3 pixels across views (the centroid of the object's
+//! visible colour), while the belief's own shape is 5-15 pixels off in every view (its hull
+//! is bloated along the earlier views' rays, and the chair's shadow and thin legs differ).
+//! Aligning to the belief's shape pulled even exact poses 0.1-0.3 m off; aligning to
+//! triangulated centroids leaves them alone. docs/fuser.md has the numbers.
+//!
+//! What one object can and cannot fix: its image position fixes the bearing, its height in
+//! the image (weakly) the range; sliding around the object while turning to keep it in view
+//! is unobservable and left to the motion model.
+//!
+//! The search is a fixed grid in the motion model's whitened coordinates (+-3 sigma in 9 steps
+//! per axis) followed by finer 3x3x3 grids around the best candidate: deterministic, and the
+//! best is chosen by (score, candidate index).
+//!
+//! Invariants: pure functions of their inputs, no I/O; without a landmark seen in the frame
+//! the correction is zero.
 
-use nalgebra::{Point3, Translation3, UnitQuaternion, Vector3};
-use rayon::prelude::*;
+use nalgebra::{
+    Matrix2, Matrix2x3, Matrix3, Point3, SymmetricEigen, Translation3, UnitQuaternion, Vector2,
+    Vector3,
+};
 
-use crate::geometry::{Camera, Iso3};
-use crate::grid::{Grid, TileEvidence};
-use crate::objects::{ObjectParams, find_objects_with_cells};
+use crate::geometry::{Camera, Iso3, yaw_of};
+use crate::grid::TileEvidence;
+use crate::motion::Segment;
 
-/// How many of the strongest cells the score looks at: enough to cover an object's visual
-/// hull at 4 cm, few enough to score hundreds of candidates in milliseconds.
-pub const MAX_ANCHOR_CELLS: usize = 4096;
+/// Tiles whose evidence is at least this (odds ratio e^3 = 20 against the prior) are
+/// detections.
+pub const DETECTION_DELTA: f32 = 3.0;
+/// Standard deviation of a cluster's centroid about its landmark's projection, horizontally
+/// and vertically, pixels (measured 1-3 px and 2-8 px across the shipped tours' views; the
+/// vertical spread comes from legs and shadows).
+pub const SIGMA_U_PX: f64 = 3.0;
+pub const SIGMA_V_PX: f64 = 8.0;
+/// A cluster further than this from a landmark's predicted position is not its sighting.
+pub const GATE_PX: f64 = 64.0;
+/// A ray passing further than this from an object's centroid is not a sighting of it.
+pub const GATE_M: f64 = 0.35;
+/// A ray missing its landmark by more than this (chi-square with 2 degrees of freedom,
+/// 99.7 %) is dropped from it.
+pub const MAX_RAY_CHI2: f64 = 11.8;
+/// Smallest eigenvalue of the rays' normal matrix for a landmark to be placed: rays from
+/// at least 15 degrees apart (1 - cos 15 deg = 0.034).
+pub const MIN_RAY_SPREAD: f64 = 0.034;
 
-/// The correction chosen for one frame.
+/// Smallest standard deviations of the motion model, added to the propagated covariance:
+/// they keep it invertible after a frame without motion and let a frame settle within a
+/// fraction of a tile of its neighbours.
+pub const FLOOR_SIGMA_XY_M: f64 = 0.01;
+pub const FLOOR_SIGMA_YAW_RAD: f64 = 0.005;
+
+/// Half-width of the coarse search, in standard deviations of the motion model.
+const SEARCH_SIGMAS: f64 = 3.0;
+/// Steps of the coarse search per axis (odd, so that no correction is a candidate).
+const COARSE_STEPS: i32 = 9;
+/// Finer 3x3x3 rounds around the best candidate, each at half the previous step.
+const FINE_ROUNDS: usize = 4;
+
+/// The correction chosen for one frame, relative to the predicted pose.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Correction {
     /// Added to the predicted position in `odom`, metres.
@@ -31,9 +82,10 @@ pub struct Correction {
     pub dy_m: f64,
     /// Added to the predicted heading, radians (about the robot's vertical axis).
     pub dyaw_rad: f64,
-    /// Score of the chosen candidate minus the score of no correction.
+    /// Score (log-likelihood plus log prior) of the chosen candidate minus that of no
+    /// correction.
     pub gain: f64,
-    /// Cells of the belief the frame was aligned to.
+    /// Landmarks the frame was aligned to (each paired with a detection cluster).
     pub anchors: usize,
 }
 
@@ -46,7 +98,8 @@ impl Correction {
         anchors: 0,
     };
 
-    /// Applies the correction to a robot pose in `odom`.
+    /// Applies the correction to a robot pose in `odom`: the heading turns about the robot's
+    /// own vertical axis, the position moves in `odom`.
     pub fn apply(&self, odom_from_base: &Iso3) -> Iso3 {
         apply(odom_from_base, self.dx_m, self.dy_m, self.dyaw_rad)
     }
@@ -58,164 +111,376 @@ fn apply(odom_from_base: &Iso3, dx: f64, dy: f64, dyaw: f64) -> Iso3 {
     Iso3::from_parts(Translation3::from(t), rot)
 }
 
-/// The belief cells a frame is aligned to: the cells of the objects found so far, as (centre
-/// in odom, evidence). Aligning to located objects rather than to raw evidence matters early
-/// on: a single view's evidence is a set of pyramids, which a new view can be turned to
-/// overlap in many ways, while the intersection of several views is a compact hull.
-pub fn anchors(grid: &Grid, params: &ObjectParams) -> Vec<([f64; 3], f32)> {
-    let prior = grid.prior_log_odds();
-    let mut cells: Vec<(f32, usize)> = find_objects_with_cells(grid, params)
-        .into_iter()
-        .flat_map(|(_, cells)| cells)
-        .map(|i| (grid.log_odds[i] - prior, i))
-        .collect();
-    // Strongest first, index breaking ties: a total order, so the cut is reproducible.
-    cells.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
-    cells.truncate(MAX_ANCHOR_CELLS);
-    cells
-        .into_iter()
-        .map(|(e, i)| {
-            let [a, b, c] = grid.spec.ijk(i);
-            (grid.spec.center(a, b, c), e)
+/// Covariance of the planar pose (x, y, yaw in `odom`) after driving `segments` from a known
+/// pose, each given with the robot pose at its start (for the heading). First-order
+/// propagation of the paper's motion model: a translation of duration t has speed error
+/// sigma_v * t along the heading; a rotation, sigma_w * t in heading; a heading error turns
+/// into a sideways error on every later translation. The floor is added at the end.
+pub fn motion_covariance(
+    segments: &[(Segment, Iso3)],
+    sigma_v_mps: f64,
+    sigma_w_radps: f64,
+) -> Matrix3<f64> {
+    let mut cov = Matrix3::zeros();
+    for (seg, pose) in segments {
+        let t = seg.duration_s();
+        if seg.v_mps != 0.0 {
+            let d = seg.v_mps * t;
+            let (s, c) = yaw_of(pose).sin_cos();
+            let f = Matrix3::new(1.0, 0.0, -d * s, 0.0, 1.0, d * c, 0.0, 0.0, 1.0);
+            let sd2 = (sigma_v_mps * t).powi(2);
+            let q = Matrix3::new(c * c, c * s, 0.0, c * s, s * s, 0.0, 0.0, 0.0, 0.0) * sd2;
+            cov = f * cov * f.transpose() + q;
+        }
+        if seg.w_radps != 0.0 {
+            cov[(2, 2)] += (sigma_w_radps * t).powi(2);
+        }
+    }
+    cov[(0, 0)] += FLOOR_SIGMA_XY_M.powi(2);
+    cov[(1, 1)] += FLOOR_SIGMA_XY_M.powi(2);
+    cov[(2, 2)] += FLOOR_SIGMA_YAW_RAD.powi(2);
+    cov
+}
+
+/// Clusters of detection tiles (8-connected), each as its evidence-weighted centroid in
+/// pixels, in row-major order of their first tile. Linking across gaps would join a chair's
+/// legs to its seat, but it also merged two chairs standing one behind the other in the
+/// two-chairs tour, whose merged centroid then pulled the pose 0.1 rad off.
+pub fn detection_clusters(ev: &TileEvidence) -> Vec<[f64; 2]> {
+    let tile = f64::from(ev.tile_px);
+    let (rows, cols) = (ev.rows, ev.cols);
+    let hot = |t: usize| ev.delta[t] >= DETECTION_DELTA;
+    let mut seen = vec![false; rows * cols];
+    let mut out = Vec::new();
+    for start in 0..rows * cols {
+        if seen[start] || !hot(start) {
+            continue;
+        }
+        seen[start] = true;
+        let mut stack = vec![start];
+        let (mut w, mut su, mut sv) = (0.0f64, 0.0f64, 0.0f64);
+        while let Some(t) = stack.pop() {
+            let (r, c) = (t / cols, t % cols);
+            let d = f64::from(ev.delta[t]);
+            w += d;
+            su += d * (c as f64 + 0.5) * tile;
+            sv += d * (r as f64 + 0.5) * tile;
+            for nr in r.saturating_sub(1)..=(r + 1).min(rows - 1) {
+                for nc in c.saturating_sub(1)..=(c + 1).min(cols - 1) {
+                    let n = nr * cols + nc;
+                    if !seen[n] && hot(n) {
+                        seen[n] = true;
+                        stack.push(n);
+                    }
+                }
+            }
+        }
+        out.push([su / w, sv / w]);
+    }
+    out
+}
+
+/// A ray in `odom` through a detection cluster's centroid, from the frame it was seen in.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Sighting {
+    pub frame: usize,
+    pub origin_m: Vector3<f64>,
+    /// Unit direction.
+    pub direction: Vector3<f64>,
+}
+
+/// The rays through a frame's detection clusters seen from `odom_from_camera`.
+pub fn sightings(
+    frame: usize,
+    clusters: &[[f64; 2]],
+    camera: &Camera,
+    odom_from_camera: &Iso3,
+) -> Vec<Sighting> {
+    clusters
+        .iter()
+        .map(|[u, v]| Sighting {
+            frame,
+            origin_m: odom_from_camera.translation.vector,
+            direction: odom_from_camera.rotation * camera.ray(*u, *v),
         })
         .collect()
 }
 
-/// Tile evidence interpolated between tile centres at continuous tile coordinates (x, y),
-/// clamped at the border. Interpolating, rather than taking the tile a point falls in, makes
-/// the score change smoothly within a tile, so the best alignment is the centred one instead
-/// of anywhere on a tile-wide plateau.
-fn bilinear(ev: &TileEvidence, x: f64, y: f64) -> f64 {
-    let (cols, rows) = (ev.cols as f64, ev.rows as f64);
-    let x = x.clamp(0.0, cols - 1.0);
-    let y = y.clamp(0.0, rows - 1.0);
-    let (x0, y0) = (x.floor(), y.floor());
-    let (fx, fy) = (x - x0, y - y0);
-    let (c0, r0) = (x0 as usize, y0 as usize);
-    let (c1, r1) = ((c0 + 1).min(ev.cols - 1), (r0 + 1).min(ev.rows - 1));
-    let at = |r: usize, c: usize| f64::from(ev.delta[r * ev.cols + c]);
-    (1.0 - fy) * ((1.0 - fx) * at(r0, c0) + fx * at(r0, c1))
-        + fy * ((1.0 - fx) * at(r1, c0) + fx * at(r1, c1))
+/// Distance from `p` to the ray's line, metres (behind the origin counts as far).
+fn ray_distance(s: &Sighting, p: &Vector3<f64>) -> f64 {
+    let d = p - s.origin_m;
+    let along = d.dot(&s.direction);
+    if along <= 0.0 {
+        return f64::INFINITY;
+    }
+    (d - s.direction * along).norm()
 }
 
-/// Belief-weighted mean tile evidence of `anchors` seen from `odom_from_camera`; anchors
-/// outside the image count as evidence 0.
-fn agreement(
-    anchors: &[([f64; 3], f32)],
-    odom_from_camera: &Iso3,
-    camera: &Camera,
-    ev: &TileEvidence,
-) -> f64 {
-    let camera_from_odom = odom_from_camera.inverse();
-    let tile = f64::from(ev.tile_px);
-    let (u_max, v_max) = (ev.cols as f64 * tile, ev.rows as f64 * tile);
-    let (mut sum, mut w_sum) = (0.0f64, 0.0f64);
-    for (c, w) in anchors {
-        let w = f64::from(*w);
-        w_sum += w;
-        let p = camera_from_odom * Point3::new(c[0], c[1], c[2]);
-        if p.z <= 1e-9 {
-            continue;
-        }
-        let u = camera.fx * p.x / p.z + camera.cx;
-        let v = camera.fy * p.y / p.z + camera.cy;
-        if u >= 0.0 && u < u_max && v >= 0.0 && v < v_max {
-            sum += w * bilinear(ev, u / tile - 0.5, v / tile - 0.5);
-        }
-    }
-    if w_sum > 0.0 { sum / w_sum } else { 0.0 }
+/// A landmark: a point in `odom` and the covariance of its position (m^2).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Landmark {
+    pub position_m: Vector3<f64>,
+    pub covariance_m2: Matrix3<f64>,
 }
 
-/// Finds the correction of `predicted` (odom_from_base) that best explains the frame's
-/// evidence `ev` against `grid`, given heading and position standard deviations of the motion
-/// since the last frame.
-#[allow(clippy::too_many_arguments)]
-pub fn refine(
-    grid: &Grid,
-    params: &ObjectParams,
-    camera: &Camera,
-    base_from_camera: &Iso3,
-    predicted: &Iso3,
-    ev: &TileEvidence,
-    sigma_yaw_rad: f64,
-    sigma_xy_m: f64,
-) -> Correction {
-    let anchors = anchors(grid, params);
-    if anchors.is_empty() || !(sigma_yaw_rad > 0.0 || sigma_xy_m > 0.0) {
-        return Correction::ZERO;
-    }
-    let score = |dx: f64, dy: f64, dyaw: f64| -> f64 {
-        let pose = apply(predicted, dx, dy, dyaw) * base_from_camera;
-        let prior_yaw = if sigma_yaw_rad > 0.0 {
-            (dyaw / sigma_yaw_rad).powi(2)
-        } else {
-            0.0
-        };
-        let prior_xy = if sigma_xy_m > 0.0 {
-            (dx * dx + dy * dy) / (sigma_xy_m * sigma_xy_m)
-        } else {
-            0.0
-        };
-        agreement(&anchors, &pose, camera, ev) - 0.5 * (prior_yaw + prior_xy)
-    };
-    let base_score = score(0.0, 0.0, 0.0);
-    // Coarse grid over +-3 sigma, then three rounds of a 3x3x3 grid at half the step around
-    // the best so far.
-    let span_yaw = 3.0 * sigma_yaw_rad;
-    let span_xy = 3.0 * sigma_xy_m;
-    let (n_yaw, n_xy) = (
-        if span_yaw > 0.0 { 6 } else { 0 },
-        if span_xy > 0.0 { 3 } else { 0 },
-    );
-    let mut step_yaw = if n_yaw > 0 {
-        span_yaw / n_yaw as f64
-    } else {
-        0.0
-    };
-    let mut step_xy = if n_xy > 0 { span_xy / n_xy as f64 } else { 0.0 };
-    let mut best = (base_score, 0.0, 0.0, 0.0);
-    let mut centre = (0.0, 0.0, 0.0);
-    for round in 0..4 {
-        let (ny, nxy) = if round == 0 {
-            (n_yaw as i64, n_xy as i64)
-        } else {
-            (i64::from(n_yaw > 0), i64::from(n_xy > 0))
-        };
-        let mut cands = Vec::new();
-        for a in -ny..=ny {
-            for i in -nxy..=nxy {
-                for j in -nxy..=nxy {
-                    cands.push((
-                        centre.0 + i as f64 * step_xy,
-                        centre.1 + j as f64 * step_xy,
-                        centre.2 + a as f64 * step_yaw,
-                    ));
+/// Places each object (given by its centroid in the belief) as a landmark: the weighted
+/// least-squares point of the rays that saw it, at most one per frame (the one passing
+/// closest, within [`GATE_M`]). A ray's sideways error is weighted by the horizontal pixel
+/// sigma, its up-down error by the vertical one, both scaled by the range to the centroid
+/// and the focal length, so the landmark's covariance comes out in metres. Objects seen from
+/// too narrow a spread of directions (fewer than two frames, or rays within 15 degrees) are
+/// left out.
+pub fn landmarks(
+    object_centroids: &[[f64; 3]],
+    sightings: &[Sighting],
+    focal_px: f64,
+) -> Vec<Landmark> {
+    let mut out = Vec::new();
+    for c in object_centroids {
+        let c = Vector3::new(c[0], c[1], c[2]);
+        // Sightings are in frame order, so one pass keeps the closest per frame.
+        let mut chosen: Vec<(f64, &Sighting)> = Vec::new();
+        for s in sightings {
+            let d = ray_distance(s, &c);
+            if d > GATE_M {
+                continue;
+            }
+            match chosen.last_mut() {
+                Some(last) if last.1.frame == s.frame => {
+                    if d < last.0 {
+                        *last = (d, s);
+                    }
+                }
+                _ => chosen.push((d, s)),
+            }
+        }
+        // Rays that disagree with the rest (a cluster that merged two objects, a shadow) are
+        // dropped one at a time, worst first, until every ray fits.
+        loop {
+            if chosen.len() < 2 {
+                break;
+            }
+            let Some(lm) = triangulate(&chosen, &c, focal_px) else {
+                break;
+            };
+            let worst = chosen
+                .iter()
+                .enumerate()
+                .map(|(k, (_, s))| (ray_chi2(s, &lm.position_m, &c, focal_px), k))
+                .max_by(|a, b| a.0.total_cmp(&b.0).then(b.1.cmp(&a.1)));
+            match worst {
+                Some((chi2, k)) if chi2 > MAX_RAY_CHI2 => {
+                    chosen.remove(k);
+                }
+                // A point the rays agree on but far from the object they were chosen for is
+                // two rays of different things crossing by chance.
+                _ if (lm.position_m - c).norm() > GATE_M => break,
+                _ => {
+                    out.push(lm);
+                    break;
                 }
             }
         }
-        let scored: Vec<(f64, usize)> = cands
-            .par_iter()
-            .enumerate()
-            .map(|(k, &(dx, dy, dyaw))| (score(dx, dy, dyaw), k))
-            .collect();
-        // Highest score, lowest index on ties: the same choice on any thread count.
-        if let Some(&(s, k)) = scored
-            .iter()
-            .max_by(|a, b| a.0.total_cmp(&b.0).then(b.1.cmp(&a.1)))
-            && s > best.0
-        {
-            best = (s, cands[k].0, cands[k].1, cands[k].2);
-        }
-        centre = (best.1, best.2, best.3);
-        step_yaw /= 2.0;
-        step_xy /= 2.0;
     }
+    out
+}
+
+/// Disagreement of one ray with a landmark at `p`: its sideways and up-down misses, in
+/// pixels at the range of `centre`, over their sigmas, squared and summed.
+fn ray_chi2(s: &Sighting, p: &Vector3<f64>, centre: &Vector3<f64>, focal_px: f64) -> f64 {
+    let Some((h, v)) = across_axes(&s.direction) else {
+        return f64::INFINITY;
+    };
+    let miss = p - s.origin_m;
+    let range = (centre - s.origin_m).norm().max(0.1);
+    let eh = h.dot(&miss) * focal_px / range / SIGMA_U_PX;
+    let ev = v.dot(&miss) * focal_px / range / SIGMA_V_PX;
+    eh * eh + ev * ev
+}
+
+/// Unit vectors across a ray: level (sideways) and the one completing them (up-down).
+fn across_axes(d: &Vector3<f64>) -> Option<(Vector3<f64>, Vector3<f64>)> {
+    let h = d.cross(&Vector3::z()).try_normalize(1e-9)?;
+    Some((h, d.cross(&h)))
+}
+
+/// The weighted least-squares point of `rays` and its covariance; `None` when they are too
+/// few or too close to parallel.
+fn triangulate(
+    rays: &[(f64, &Sighting)],
+    centre: &Vector3<f64>,
+    focal_px: f64,
+) -> Option<Landmark> {
+    let mut spread = Matrix3::zeros();
+    let mut info = Matrix3::zeros();
+    let mut b = Vector3::zeros();
+    for (_, s) in rays {
+        let d = s.direction;
+        spread += Matrix3::identity() - d * d.transpose();
+        let (h, v) = across_axes(&d)?;
+        let range = (centre - s.origin_m).norm().max(0.1);
+        let wh = (focal_px / (range * SIGMA_U_PX)).powi(2);
+        let wv = (focal_px / (range * SIGMA_V_PX)).powi(2);
+        let m = h * h.transpose() * wh + v * v.transpose() * wv;
+        info += m;
+        b += m * s.origin_m;
+    }
+    if rays.len() < 2 || SymmetricEigen::new(spread).eigenvalues.min() < MIN_RAY_SPREAD {
+        return None;
+    }
+    let cov = info.try_inverse()?;
+    Some(Landmark {
+        position_m: cov * b,
+        covariance_m2: cov,
+    })
+}
+
+fn project(camera: &Camera, camera_from_odom: &Iso3, p: &Vector3<f64>) -> Option<[f64; 2]> {
+    camera
+        .project(&(camera_from_odom * Point3::from(*p)))
+        .map(|(u, v)| [u, v])
+}
+
+/// Information (inverse covariance, 1/pixels^2) of where `lm` appears from `camera_from_odom`: its position's
+/// covariance pushed through the projection, plus the detection's own spread.
+fn image_covariance(
+    lm: &Landmark,
+    camera: &Camera,
+    camera_from_odom: &Iso3,
+) -> Option<Matrix2<f64>> {
+    let p = camera_from_odom * Point3::from(lm.position_m);
+    if p.z <= 1e-9 {
+        return None;
+    }
+    let r = camera_from_odom.rotation.to_rotation_matrix();
+    let dproj = Matrix2x3::new(
+        camera.fx / p.z,
+        0.0,
+        -camera.fx * p.x / (p.z * p.z),
+        0.0,
+        camera.fy / p.z,
+        -camera.fy * p.y / (p.z * p.z),
+    );
+    let j = dproj * r.matrix();
+    let s = j * lm.covariance_m2 * j.transpose()
+        + Matrix2::new(SIGMA_U_PX.powi(2), 0.0, 0.0, SIGMA_V_PX.powi(2));
+    s.try_inverse()
+}
+
+/// Pairs each landmark visible from `odom_from_camera` with the nearest cluster within
+/// [`GATE_PX`], closest pairs first, each cluster used once.
+fn associate(
+    landmarks: &[Landmark],
+    clusters: &[[f64; 2]],
+    camera: &Camera,
+    odom_from_camera: &Iso3,
+) -> Vec<(usize, usize)> {
+    let camera_from_odom = odom_from_camera.inverse();
+    let mut pairs = Vec::new();
+    for (i, l) in landmarks.iter().enumerate() {
+        let Some(p) = project(camera, &camera_from_odom, &l.position_m) else {
+            continue;
+        };
+        for (j, c) in clusters.iter().enumerate() {
+            let dist = (p[0] - c[0]).hypot(p[1] - c[1]);
+            if dist <= GATE_PX {
+                pairs.push((dist, i, j));
+            }
+        }
+    }
+    pairs.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)).then(a.2.cmp(&b.2)));
+    let mut used_l = vec![false; landmarks.len()];
+    let mut used_c = vec![false; clusters.len()];
+    let mut out = Vec::new();
+    for (_, i, j) in pairs {
+        if !used_l[i] && !used_c[j] {
+            used_l[i] = true;
+            used_c[j] = true;
+            out.push((i, j));
+        }
+    }
+    out
+}
+
+/// Finds the correction of `predicted` (odom_from_base) that best explains the frame's
+/// detection `clusters` given the `landmarks` and the motion model's covariance `cov`
+/// (x, y, yaw).
+pub fn refine(
+    landmarks: &[Landmark],
+    clusters: &[[f64; 2]],
+    camera: &Camera,
+    base_from_camera: &Iso3,
+    predicted: &Iso3,
+    cov: &Matrix3<f64>,
+) -> Correction {
+    let Some(chol) = nalgebra::Cholesky::new(*cov) else {
+        return Correction::ZERO;
+    };
+    let pairs = associate(landmarks, clusters, camera, &(predicted * base_from_camera));
+    if pairs.is_empty() {
+        return Correction::ZERO;
+    }
+    let l = chol.l();
+    // Each pair's information matrix in pixels, at the predicted pose (the window is small
+    // against the range, so it holds over the search).
+    let camera_from_predicted = (predicted * base_from_camera).inverse();
+    let infos: Vec<Matrix2<f64>> =
+        pairs
+            .iter()
+            .map(|&(i, _)| {
+                image_covariance(&landmarks[i], camera, &camera_from_predicted).unwrap_or(
+                    Matrix2::new(SIGMA_U_PX.powi(-2), 0.0, 0.0, SIGMA_V_PX.powi(-2)),
+                )
+            })
+            .collect();
+    // z: whitened coordinates; the correction is L z and its log prior -|z|^2 / 2.
+    let score = |z: &Vector3<f64>| -> f64 {
+        let d = l * z;
+        let camera_from_odom = (apply(predicted, d.x, d.y, d.z) * base_from_camera).inverse();
+        let mut log_lik = 0.0;
+        for (&(i, j), info) in pairs.iter().zip(&infos) {
+            let r2 = match project(camera, &camera_from_odom, &landmarks[i].position_m) {
+                Some(p) => {
+                    let e = Vector2::new(p[0] - clusters[j][0], p[1] - clusters[j][1]);
+                    (e.transpose() * info * e)[(0, 0)]
+                }
+                // Behind the camera: as bad as the gate, so the score stays finite.
+                None => (GATE_PX / SIGMA_U_PX).powi(2),
+            };
+            log_lik -= 0.5 * r2;
+        }
+        log_lik - 0.5 * z.norm_squared()
+    };
+    let base_score = score(&Vector3::zeros());
+    let mut best = (base_score, Vector3::zeros());
+    let half = COARSE_STEPS / 2;
+    let mut step = SEARCH_SIGMAS / f64::from(half);
+    let mut span = half;
+    for _ in 0..=FINE_ROUNDS {
+        let centre = best.1;
+        for a in -span..=span {
+            for b in -span..=span {
+                for c in -span..=span {
+                    let z = centre + Vector3::new(f64::from(a), f64::from(b), f64::from(c)) * step;
+                    let s = score(&z);
+                    // Strictly better only: the first of equal candidates wins, in a fixed
+                    // order, so the choice is reproducible.
+                    if s > best.0 {
+                        best = (s, z);
+                    }
+                }
+            }
+        }
+        span = 1;
+        step /= 2.0;
+    }
+    let d = l * best.1;
     Correction {
-        dx_m: best.1,
-        dy_m: best.2,
-        dyaw_rad: best.3,
+        dx_m: d.x,
+        dy_m: d.y,
+        dyaw_rad: d.z,
         gain: best.0 - base_score,
-        anchors: anchors.len(),
+        anchors: pairs.len(),
     }
 }
 
@@ -223,82 +488,161 @@ pub fn refine(
 mod tests {
     use super::*;
     use crate::geometry::{camera_mount, iso_from_xy_yaw};
-    use crate::grid::GridSpec;
 
-    fn params() -> ObjectParams {
-        ObjectParams {
-            min_views: 0,
-            ..ObjectParams::default()
+    fn seg(start_s: f64, end_s: f64, v: f64, w: f64) -> Segment {
+        Segment {
+            start_ns: (start_s * 1e9) as i64,
+            end_ns: (end_s * 1e9) as i64,
+            v_mps: v,
+            w_radps: w,
         }
     }
 
-    /// A belief with one hot block, a camera that saw it from a pose off by a known yaw: the
-    /// refinement recovers the yaw to within a fraction of a tile's angle.
+    /// Rotate 2 s with sigma_w = 0.01 (heading sd 0.02 rad), then drive 1 m along +x in 4 s
+    /// with sigma_v = 0.02 (along-track sd 0.08 m): the sideways variance is d^2 * var(yaw)
+    /// = 0.0004, the y-yaw covariance d * var(yaw) = 0.0004, plus the floors.
+    #[test]
+    fn covariance_of_a_turn_then_a_drive() {
+        let segs = [
+            (seg(0.0, 2.0, 0.0, 0.5), iso_from_xy_yaw(0.0, 0.0, -1.0)),
+            (seg(2.0, 6.0, 0.25, 0.0), iso_from_xy_yaw(0.0, 0.0, 0.0)),
+        ];
+        let cov = motion_covariance(&segs, 0.02, 0.01);
+        let fxy = FLOOR_SIGMA_XY_M.powi(2);
+        let fyaw = FLOOR_SIGMA_YAW_RAD.powi(2);
+        let close = |a: f64, b: f64| (a - b).abs() < 1e-12;
+        assert!(close(cov[(0, 0)], 0.08f64.powi(2) + fxy), "{cov}");
+        assert!(close(cov[(1, 1)], 0.0004 + fxy), "{cov}");
+        assert!(close(cov[(2, 2)], 0.0004 + fyaw), "{cov}");
+        assert!(
+            close(cov[(1, 2)], 0.0004) && close(cov[(2, 1)], 0.0004),
+            "{cov}"
+        );
+        assert!(close(cov[(0, 1)], 0.0) && close(cov[(0, 2)], 0.0), "{cov}");
+        let still = motion_covariance(&[], 0.02, 0.01);
+        assert_eq!(still, Matrix3::from_diagonal(&Vector3::new(fxy, fxy, fyaw)));
+    }
+
+    /// Two blobs: a 2x1 pair with evidence 4 and 6 (centroid pulled toward the 6), and a
+    /// single tile; a tile below the threshold joins neither.
+    #[test]
+    fn clusters_are_evidence_weighted_centroids() {
+        let (rows, cols) = (4, 6);
+        let mut delta = vec![-2.0f32; rows * cols];
+        delta[cols + 1] = 4.0; // row 1, col 1: centre (12, 12)
+        delta[cols + 2] = 6.0; // row 1, col 2: centre (20, 12)
+        delta[3 * cols + 5] = 3.5; // row 3, col 5: centre (44, 28)
+        delta[cols + 3] = 2.9; // below DETECTION_DELTA, though adjacent
+        let ev = TileEvidence {
+            rows,
+            cols,
+            tile_px: 8,
+            delta,
+        };
+        let c = detection_clusters(&ev);
+        assert_eq!(c.len(), 2, "{c:?}");
+        assert!((c[0][0] - (4.0 * 12.0 + 6.0 * 20.0) / 10.0).abs() < 1e-12);
+        assert!((c[0][1] - 12.0).abs() < 1e-12);
+        assert_eq!(c[1], [44.0, 28.0]);
+    }
+
+    /// Three cameras around a point, each seeing it exactly: the landmark is the point. A
+    /// fourth ray, passing within the gate but 0.3 m off (24 px), is dropped. (A smaller
+    /// outlier is averaged in: least squares spreads it over all rays until none stands out.)
+    #[test]
+    fn landmark_is_where_the_rays_meet_and_outliers_are_dropped() {
+        let cam = Camera::with_hfov(256, 240, 1.05);
+        let mount = camera_mount([0.2, 0.0, 1.2], 0.26);
+        let target = Vector3::new(0.1, -0.2, 0.45);
+        let mut seen = Vec::new();
+        for (k, a) in [0.0f64, 0.8, 1.6, 2.4].iter().enumerate() {
+            let (x, y) = (2.8 * a.cos(), 2.8 * a.sin());
+            let base = iso_from_xy_yaw(x, y, (-y).atan2(-x));
+            let cam_pose = base * mount;
+            // The fourth frame's detection is off by 0.3 m sideways at the target.
+            let aim = if k == 3 {
+                target + (cam_pose.rotation * Vector3::x()) * 0.3
+            } else {
+                target
+            };
+            let (u, v) = cam
+                .project(&(cam_pose.inverse() * Point3::from(aim)))
+                .unwrap();
+            seen.extend(sightings(k, &[[u, v]], &cam, &cam_pose));
+        }
+        let lms = landmarks(&[[0.05, -0.15, 0.4]], &seen, cam.fx);
+        assert_eq!(lms.len(), 1);
+        let err = (lms[0].position_m - target).norm();
+        assert!(err < 1e-6, "landmark {} off by {err}", lms[0].position_m);
+        // Rays from a single frame do not place a landmark.
+        assert!(landmarks(&[[0.05, -0.15, 0.4]], &seen[..1], cam.fx).is_empty());
+    }
+
+    /// A landmark, the camera that saw it from `truth`, and odometry that believes the robot
+    /// is elsewhere: the refinement moves the prediction back.
+    fn localise_case(predicted: Iso3, cov: Matrix3<f64>) -> (Correction, Iso3) {
+        let cam = Camera::with_hfov(256, 240, 1.05);
+        let mount = camera_mount([0.2, 0.0, 1.2], 0.26);
+        let target = Vector3::new(0.0, 0.0, 0.45);
+        let lm = Landmark {
+            position_m: target,
+            covariance_m2: Matrix3::zeros(),
+        };
+        let truth = iso_from_xy_yaw(-2.8, 0.0, 0.0);
+        let (u, v) = cam
+            .project(&((truth * mount).inverse() * Point3::from(target)))
+            .unwrap();
+        let c = refine(&[lm], &[[u, v]], &cam, &mount, &predicted, &cov);
+        (c, truth)
+    }
+
+    /// Odometry believes the robot is turned 0.08 rad (4.6 degrees) to the left; with a
+    /// motion model loose in heading and tight in position, the refinement turns it back.
     #[test]
     fn recovers_a_known_heading_error() {
-        let spec = GridSpec::from_bounds([-1.0, -1.0, 0.0], [1.0, 1.0, 1.0], 0.04).unwrap();
-        let mut g = Grid::new(spec, 0.01).unwrap();
-        let prior = g.prior_log_odds();
-        for i in 0..spec.cells() {
-            let [a, b, c] = spec.ijk(i);
-            let p = spec.center(a, b, c);
-            if p[0].abs() < 0.1 && p[1].abs() < 0.1 && (p[2] - 0.5).abs() < 0.2 {
-                g.log_odds[i] = prior + 20.0;
-            }
-        }
-        let cam = Camera::with_hfov(256, 240, 1.05);
-        let mount = camera_mount([0.0, 0.0, 0.5], 0.0);
-        let truth = iso_from_xy_yaw(-2.5, 0.0, 0.0);
-        // The tiles the block covers, seen from the true pose.
-        let (rows, cols) = (30, 32);
-        let mut p = vec![0.005f32; rows * cols];
-        let cam_from_odom = (truth * mount).inverse();
-        for i in 0..spec.cells() {
-            if g.log_odds[i] > prior {
-                let [a, b, c] = spec.ijk(i);
-                let q = spec.center(a, b, c);
-                if let Some((u, v)) = cam.project(&(cam_from_odom * Point3::new(q[0], q[1], q[2])))
-                    && u >= 0.0
-                    && v >= 0.0
-                    && u < 256.0
-                    && v < 240.0
-                {
-                    p[(v / 8.0) as usize * cols + (u / 8.0) as usize] = 0.95;
-                }
-            }
-        }
-        let ev = TileEvidence::from_probabilities(rows, cols, 8, &p, 0.01);
-        // Odometry believes the robot is turned 0.08 rad (4.6 degrees) to the left.
-        let predicted = iso_from_xy_yaw(-2.5, 0.0, 0.08);
-        let c = refine(&g, &params(), &cam, &mount, &predicted, &ev, 0.06, 0.02);
-        assert!((c.dyaw_rad + 0.08).abs() < 0.02, "{c:?}");
-        assert!(c.gain > 0.0);
-        let fixed = c.apply(&predicted);
-        assert!(crate::geometry::yaw_of(&fixed).abs() < 0.02);
-        // With exact odometry the correction stays within the same tolerance of zero.
-        let c0 = refine(&g, &params(), &cam, &mount, &truth, &ev, 0.06, 0.02);
+        let cov = Matrix3::from_diagonal(&Vector3::new(0.0001, 0.0001, 0.0025));
+        let (c, truth) = localise_case(iso_from_xy_yaw(-2.8, 0.0, 0.08), cov);
+        assert!((c.dyaw_rad + 0.08).abs() < 0.005, "{c:?}");
+        assert!(c.gain > 0.0 && c.anchors == 1);
+        let fixed = c.apply(&iso_from_xy_yaw(-2.8, 0.0, 0.08));
+        assert!(yaw_of(&(truth.inverse() * fixed)).abs() < 0.005);
+        // Exact odometry: no correction beyond the search's finest step.
+        let (c0, _) = localise_case(truth, cov);
         assert!(
-            c0.dyaw_rad.abs() < 0.02 && c0.dx_m.abs() < 0.03 && c0.dy_m.abs() < 0.03,
+            c0.dyaw_rad.abs() < 1e-3 && c0.dx_m.abs() < 1e-3 && c0.dy_m.abs() < 1e-3,
             "{c0:?}"
         );
     }
 
+    /// The robot is 0.2 m to the side of where odometry says, heading known well: the
+    /// motion model makes the search move the robot rather than turn it.
     #[test]
-    fn empty_belief_means_no_correction() {
-        let spec = GridSpec::from_bounds([-1.0; 3], [1.0; 3], 0.1).unwrap();
-        let g = Grid::new(spec, 0.01).unwrap();
+    fn a_certain_heading_turns_a_bearing_error_into_a_position_correction() {
+        let cov = Matrix3::from_diagonal(&Vector3::new(0.0225, 0.0225, 0.0001));
+        let (c, _) = localise_case(iso_from_xy_yaw(-2.8, 0.2, 0.0), cov);
+        assert!((c.dy_m + 0.2).abs() < 0.03, "{c:?}");
+        assert!(c.dyaw_rad.abs() < 0.01, "{c:?}");
+    }
+
+    #[test]
+    fn nothing_to_align_to_means_no_correction() {
         let cam = Camera::with_hfov(64, 48, 1.0);
-        let ev = TileEvidence::from_probabilities(6, 8, 8, &[0.5; 48], 0.01);
+        let cov = motion_covariance(&[], 0.1, 0.1);
         let c = refine(
-            &g,
-            &params(),
+            &[],
+            &[[30.0, 20.0]],
             &cam,
             &Iso3::identity(),
             &Iso3::identity(),
-            &ev,
-            0.1,
-            0.1,
+            &cov,
         );
+        assert_eq!(c, Correction::ZERO);
+        let lm = Landmark {
+            position_m: Vector3::new(0.0, 0.0, 2.0),
+            covariance_m2: Matrix3::zeros(),
+        };
+        // A landmark but no detection near it.
+        let c = refine(&[lm], &[], &cam, &Iso3::identity(), &Iso3::identity(), &cov);
         assert_eq!(c, Correction::ZERO);
     }
 }

@@ -19,7 +19,9 @@ use crate::grid::{Grid, GridError, GridSpec, TileEvidence, logit};
 use crate::motion::{BlurMode, Blurrer, Segment, segments_between};
 use crate::msgs::GroundTruth;
 use crate::objects::{Object, ObjectParams, find_objects, find_objects_with_cells};
-use crate::refine::{Correction, refine};
+use crate::refine::{
+    Correction, Sighting, detection_clusters, landmarks, motion_covariance, refine, sightings,
+};
 use crate::session::{At, Rgb8, Role, SessionError, SessionMsg, SessionReader, fmt_ns};
 
 /// A frame is posed when the odometry reaches within this of its stamp on both sides (or
@@ -494,6 +496,13 @@ impl Fuser {
         }
     }
 
+    /// Drops the pose uncertainty accumulated for [`BlurMode::Observation`]: the next frame's
+    /// pose has been measured against the belief.
+    pub fn forget_motion(&mut self) {
+        self.heading_var_rad2 = 0.0;
+        self.position_var_m2 = 0.0;
+    }
+
     /// Integrates one frame's tile probabilities seen from `odom_from_camera`.
     /// `odom_from_base` is the robot's pose, the centre of heading uncertainty.
     pub fn integrate(
@@ -536,9 +545,6 @@ struct Prepared {
     odometry: Iso3,
     probs: TileProbs,
 }
-
-/// Passes of localising every frame against the belief and fusing again, when refining.
-pub const REFINE_PASSES: usize = 3;
 
 /// Replays `reader` with `classifier` into a grid, telling `observers` each step.
 pub fn replay(
@@ -617,38 +623,6 @@ pub fn replay(
         });
     }
 
-    // Poses to fuse with: odometry, or odometry corrected against the belief.
-    let mut poses: Vec<Iso3> = prepared.iter().map(|p| p.odometry).collect();
-    let mut corrections: Vec<Option<Correction>> = vec![None; prepared.len()];
-    if options.refine_poses {
-        for _ in 0..REFINE_PASSES {
-            let grid = fuse_all(&data, &prepared, &poses, spec, prior, options)?;
-            for (k, p) in prepared.iter().enumerate().skip(1) {
-                let (var_yaw, var_xy) =
-                    pose_variance(&data, options, prepared[0].frame.stamp_ns, p.frame.stamp_ns);
-                let ev = TileEvidence::from_probabilities(
-                    p.probs.rows,
-                    p.probs.cols,
-                    p.probs.tile_px,
-                    &p.probs.p,
-                    grid.prior,
-                );
-                let c = refine(
-                    &grid,
-                    &options.objects,
-                    &data.camera,
-                    &data.base_from_camera,
-                    &p.odometry,
-                    &ev,
-                    var_yaw.sqrt(),
-                    var_xy.sqrt(),
-                );
-                poses[k] = c.apply(&p.odometry);
-                corrections[k] = Some(c);
-            }
-        }
-    }
-
     // The replay proper, observed.
     let mut fuser = Fuser::new(spec, prior, options.clone()).map_err(grid_err)?;
     for o in observers.iter_mut() {
@@ -663,11 +637,55 @@ pub fn replay(
             })?;
     }
     let mut per_frame = Vec::new();
+    // Poses the frames are fused with: odometry, or odometry corrected against the belief.
+    let mut poses: Vec<Iso3> = Vec::with_capacity(prepared.len());
+    // Rays through the detections of the frames fused so far, when refining.
+    let mut seen: Vec<Sighting> = Vec::new();
     for (index, p) in prepared.iter().enumerate() {
         let fr = &p.frame;
         let at = || reader.at(Some(&fr.topic), fr.log_time_ns);
+        let clusters = if options.refine_poses {
+            detection_clusters(&TileEvidence::from_probabilities(
+                p.probs.rows,
+                p.probs.cols,
+                p.probs.tile_px,
+                &p.probs.p,
+                prior,
+            ))
+        } else {
+            Vec::new()
+        };
+        let correction = match index.checked_sub(1) {
+            Some(prev) if options.refine_poses => {
+                let c = localise(
+                    &fuser.grid,
+                    &data,
+                    options,
+                    &prepared,
+                    &poses,
+                    &seen,
+                    &clusters,
+                    index,
+                );
+                poses.push(c.apply(&predicted_pose(&prepared, &poses, index, prev)));
+                Some(c)
+            }
+            _ => {
+                poses.push(p.odometry);
+                None
+            }
+        };
+        if options.refine_poses {
+            seen.extend(sightings(
+                index,
+                &clusters,
+                &data.camera,
+                &(poses[index] * data.base_from_camera),
+            ));
+        }
         let odom_from_base = poses[index];
-        let segments = fuse_one(&mut fuser, &data, &prepared, &poses, index);
+        let localised = correction.is_some_and(|c| c.anchors > 0);
+        let segments = fuse_one(&mut fuser, &data, &prepared, &poses, index, localised);
         let odom_from_camera = odom_from_base * data.base_from_camera;
         let cells_updated = fuser.last_cells_updated;
         let objects = find_objects(&fuser.grid, &options.objects);
@@ -678,7 +696,7 @@ pub fn replay(
                 odom_from_camera,
                 odom_from_base,
                 odometry: p.odometry,
-                correction: corrections[index],
+                correction,
                 image: decode_frame(reader, &data, fr)?,
                 probs: p.probs.clone(),
                 segments,
@@ -709,7 +727,7 @@ pub fn replay(
             yaw_rad: yaw_of(&odom_from_base),
             odom_position_m: [odo.x, odo.y, odo.z],
             odom_yaw_rad: yaw_of(&p.odometry),
-            correction: corrections[index],
+            correction,
             cells_updated,
             max_probability: crate::grid::sigmoid(f64::from(max_l)),
             objects,
@@ -765,34 +783,77 @@ fn decode_frame(
     Ok(image)
 }
 
-/// Heading and position variance of the motion between two stamps, from the commands.
-fn pose_variance(
+/// Where frame `index` is predicted to be: the previous frame's pose (refined) moved by the
+/// odometry increment between the two frames.
+fn predicted_pose(prepared: &[Prepared], poses: &[Iso3], index: usize, prev: usize) -> Iso3 {
+    poses[prev] * prepared[prev].odometry.inverse() * prepared[index].odometry
+}
+
+/// Localises frame `index` against the landmarks before it is fused (see
+/// [`crate::refine`]); `poses` holds the poses of the frames before it, `seen` the rays
+/// through their detections.
+#[allow(clippy::too_many_arguments)]
+fn localise(
+    grid: &Grid,
     data: &SessionData,
     options: &FuseOptions,
-    from_ns: i64,
-    to_ns: i64,
-) -> (f64, f64) {
-    let (mut var_yaw, mut var_xy) = (0.0, 0.0);
-    for seg in segments_between(&data.commands, from_ns, to_ns) {
-        let t = seg.duration_s();
-        if seg.w_radps != 0.0 {
-            var_yaw += (options.sigma_w_radps * t).powi(2);
-        }
-        if seg.v_mps != 0.0 {
-            var_xy += (options.sigma_v_mps * t).powi(2);
-        }
-    }
-    (var_yaw, var_xy)
+    prepared: &[Prepared],
+    poses: &[Iso3],
+    seen: &[Sighting],
+    clusters: &[[f64; 2]],
+    index: usize,
+) -> Correction {
+    let prev = index - 1;
+    let p = &prepared[index];
+    // Motion since the previous frame, each segment with its start pose moved by the
+    // previous frame's correction (its heading is what turns speed error sideways).
+    let drift = poses[prev] * prepared[prev].odometry.inverse();
+    let segments: Vec<(Segment, Iso3)> = segments_between(
+        &data.commands,
+        prepared[prev].frame.stamp_ns,
+        p.frame.stamp_ns,
+    )
+    .into_iter()
+    .map(|seg| {
+        let pose = drift * data.odom_at(seg.start_ns).unwrap_or(p.odometry);
+        (seg, pose)
+    })
+    .collect();
+    let cov = motion_covariance(&segments, options.sigma_v_mps, options.sigma_w_radps);
+    // The belief's objects, requiring only as many views as there have been frames, tell
+    // which rays belong together.
+    let params = ObjectParams {
+        min_views: options
+            .objects
+            .min_views
+            .min(u16::try_from(index).unwrap_or(u16::MAX)),
+        ..options.objects
+    };
+    let centroids: Vec<[f64; 3]> = find_objects(grid, &params)
+        .into_iter()
+        .map(|o| o.centroid_m)
+        .collect();
+    refine(
+        &landmarks(&centroids, seen, data.camera.fx),
+        clusters,
+        &data.camera,
+        &data.base_from_camera,
+        &predicted_pose(prepared, poses, index, prev),
+        &cov,
+    )
 }
 
 /// Blurs by the motion since the previous prepared frame, then integrates frame `index` at
-/// `poses[index]`; returns the blurred segments.
+/// `poses[index]`; returns the blurred segments. A `localised` frame is not blurred: its
+/// pose was measured against the landmarks, which replaces the motion model's spread (what
+/// is left is a few pixels, below a cell at these ranges; measured in docs/fuser.md).
 fn fuse_one(
     fuser: &mut Fuser,
     data: &SessionData,
     prepared: &[Prepared],
     poses: &[Iso3],
     index: usize,
+    localised: bool,
 ) -> Vec<Segment> {
     let p = &prepared[index];
     let odom_from_base = poses[index];
@@ -800,6 +861,10 @@ fn fuse_one(
     // first frame anchors the belief). Segment poses come from odometry, moved by this
     // frame's correction.
     let segments = match index.checked_sub(1) {
+        Some(_) if localised => {
+            fuser.forget_motion();
+            Vec::new()
+        }
         Some(prev) => segments_between(
             &data.commands,
             prepared[prev].frame.stamp_ns,
@@ -822,26 +887,6 @@ fn fuse_one(
     fuser.last_cells_updated =
         fuser.integrate(&odom_from_camera, &odom_from_base, &data.camera, &p.probs);
     segments
-}
-
-/// Fuses every prepared frame at `poses`, unobserved: the belief refinement aligns to.
-fn fuse_all(
-    data: &SessionData,
-    prepared: &[Prepared],
-    poses: &[Iso3],
-    spec: GridSpec,
-    prior: f64,
-    options: &FuseOptions,
-) -> Result<Grid, ReplayError> {
-    let mut fuser =
-        Fuser::new(spec, prior, options.clone()).map_err(|source| ReplayError::Grid {
-            path: data.path.clone(),
-            source,
-        })?;
-    for index in 0..prepared.len() {
-        fuse_one(&mut fuser, data, prepared, poses, index);
-    }
-    Ok(fuser.grid)
 }
 
 /// Position of a point of `odom` in the camera image at `odom_from_camera`, if in front.

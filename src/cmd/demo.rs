@@ -1,17 +1,18 @@
 //! `objloc demo`: the README's first command. Trains on the shipped chair training session,
 //! fuses the chair tour, prints the located chair and its error against ground truth, and
-//! writes the model, report and grid under `out/demo/`.
+//! writes the model, report and grid under `out/demo/`; then fuses the drift tour with and
+//! without pose refinement and compares the two.
 
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 
 use objloc::dataset::load_session;
-use objloc::eval::{evaluate, true_objects};
+use objloc::eval::{Evaluation, evaluate, true_objects};
 use objloc::model::{TrainConfig, examples, fit_model};
 
 use super::TopicArgs;
-use super::fuse::{FuseArgs, fuse, print_summary, write_outputs};
+use super::fuse::{FuseArgs, Fused, fuse, print_summary, write_outputs};
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
@@ -21,6 +22,10 @@ pub struct Args {
     /// Session to fuse.
     #[arg(long, default_value = "recordings/chair-tour.mcap")]
     pub tour: PathBuf,
+    /// Session fused a second time with and without `--refine-poses`, to show drift
+    /// correction (skipped when it does not exist).
+    #[arg(long, default_value = "recordings/chair-tour-drift.mcap")]
+    pub drift_tour: PathBuf,
     /// Where the model, report and grid go.
     #[arg(long, default_value = "out/demo")]
     pub out: PathBuf,
@@ -79,21 +84,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let grid_path = args.out.join("grid.npy");
     write_outputs(&f, Some(&report_path), Some(&grid_path))?;
 
-    if let Some(gt) = &f.outcome.data.ground_truth {
-        let truth = true_objects(gt);
-        let track: Vec<(i64, [f64; 3])> = f
-            .outcome
-            .data
-            .ground_truth_poses
-            .iter()
-            .map(|(t, p)| (*t, p.translation.vector.into()))
-            .collect();
-        let e = evaluate(
-            &report_path.display().to_string(),
-            &f.report,
-            &truth,
-            &track,
-        );
+    if let Some(e) = evaluation(&f, &report_path) {
         println!("== against ground truth");
         for m in &e.matches {
             println!("{}", m.describe());
@@ -127,5 +118,91 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         report_path.display(),
         grid_path.display()
     );
+
+    let drift_path = locate(&args.drift_tour);
+    if drift_path.exists() {
+        drift(&args, &drift_path, &model_path)?;
+    }
     Ok(())
+}
+
+/// The drift tour's robot noise (5 % of 0.3 m/s driving, 3 % of 0.5 rad/s turning), which
+/// `--refine-poses` needs as its motion model.
+const DRIFT_SIGMA_V_MPS: f64 = 0.015;
+const DRIFT_SIGMA_W_RADPS: f64 = 0.015;
+
+/// Fuses the drift tour with odometry alone and with refined poses, and compares them.
+fn drift(args: &Args, path: &Path, model_path: &Path) -> anyhow::Result<()> {
+    println!(
+        "== fusing {} (speed noise 5 %/3 %) without and with --refine-poses",
+        path.display()
+    );
+    let mut rows = Vec::new();
+    for refine in [false, true] {
+        let name = if refine {
+            "drift-refined"
+        } else {
+            "drift-odometry"
+        };
+        let report_path = args.out.join(format!("{name}.json"));
+        let fuse_args = FuseArgs {
+            refine_poses: refine,
+            sigma_v: DRIFT_SIGMA_V_MPS,
+            sigma_w: DRIFT_SIGMA_W_RADPS,
+            ..args.fuse.clone()
+        };
+        let f = fuse(
+            path,
+            model_path,
+            &fuse_args,
+            &args.topics,
+            &args.rerun,
+            &objloc::viz::rrd_beside(&report_path),
+        )
+        .with_context(|| format!("demo: fuse {name}"))?;
+        write_outputs(&f, Some(&report_path), None)?;
+        if let Some(e) = evaluation(&f, &report_path) {
+            rows.push((name, e));
+        }
+    }
+    println!(
+        "  {:<16} {:>8} {:>9} {:>10} {:>9}",
+        "poses", "objects", "max err", "odom ATE", "ATE"
+    );
+    let metres = |x: Option<f64>| x.map(|x| format!("{x:.3} m")).unwrap_or_else(|| "-".into());
+    for (name, e) in &rows {
+        println!(
+            "  {:<16} {:>8} {:>9} {:>10} {:>9}",
+            name,
+            e.matches.len() + e.spurious.len(),
+            metres(e.max_error_m()),
+            metres(e.trajectory.as_ref().map(|t| t.odometry_ate_m)),
+            metres(e.trajectory.as_ref().map(|t| t.fused_ate_m)),
+        );
+    }
+    println!(
+        "wrote {} and {}",
+        args.out.join("drift-odometry.json").display(),
+        args.out.join("drift-refined.json").display()
+    );
+    Ok(())
+}
+
+/// The fuse scored against the session's ground truth, when it has some.
+fn evaluation(f: &Fused, report_path: &Path) -> Option<Evaluation> {
+    let gt = f.outcome.data.ground_truth.as_ref()?;
+    let truth = true_objects(gt);
+    let track: Vec<(i64, [f64; 3])> = f
+        .outcome
+        .data
+        .ground_truth_poses
+        .iter()
+        .map(|(t, p)| (*t, p.translation.vector.into()))
+        .collect();
+    Some(evaluate(
+        &report_path.display().to_string(),
+        &f.report,
+        &truth,
+        &track,
+    ))
 }

@@ -68,19 +68,22 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         if evals.len() > 1 {
             println!("comparison:");
             println!(
-                "  {:<40} {:>8} {:>7} {:>9} {:>8}",
-                "report", "matched", "missed", "spurious", "max err"
+                "  {:<40} {:>11} {:>8} {:>7} {:>9} {:>9} {:>9} {:>9}",
+                "report", "poses", "matched", "missed", "spurious", "max err", "odom ATE", "ATE"
             );
+            let metres =
+                |x: Option<f64>| x.map(|x| format!("{x:.3} m")).unwrap_or_else(|| "-".into());
             for e in &evals {
                 println!(
-                    "  {:<40} {:>8} {:>7} {:>9} {:>8}",
+                    "  {:<40} {:>11} {:>8} {:>7} {:>9} {:>9} {:>9} {:>9}",
                     e.report,
+                    e.poses,
                     e.matches.len(),
                     e.missed.len(),
                     e.spurious.len(),
-                    e.max_error_m()
-                        .map(|x| format!("{x:.3} m"))
-                        .unwrap_or_else(|| "-".into())
+                    metres(e.max_error_m()),
+                    metres(e.trajectory.as_ref().map(|t| t.odometry_ate_m)),
+                    metres(e.trajectory.as_ref().map(|t| t.fused_ate_m)),
                 );
             }
         }
@@ -105,8 +108,8 @@ fn print_eval(e: &Evaluation) {
     println!("  voxel IoU of the thresholded belief: {:.3}", e.voxel_iou);
     if let Some(t) = &e.trajectory {
         println!(
-            "  trajectory at {} frames: /odom ATE {:.3} m (max {:.3} m), poses fused with ATE {:.3} m",
-            t.frames, t.odometry_ate_m, t.odometry_max_m, t.fused_ate_m
+            "  trajectory at {} frames: /odom ATE {:.3} m (max {:.3} m); poses fused with ({}): ATE {:.3} m",
+            t.frames, t.odometry_ate_m, t.odometry_max_m, e.poses, t.fused_ate_m
         );
     }
     println!("  after each frame:");

@@ -71,6 +71,11 @@ pub struct FuseArgs {
     /// sessions: separates odometry error from classifier error).
     #[arg(long, value_enum, default_value_t = PoseSource::Odometry)]
     pub poses: PoseSource,
+    /// Before each frame is fused, localise it against the objects seen so far, searching
+    /// around the odometry prediction under the motion model (--sigma-v/--sigma-w: set them
+    /// to your robot's speed noise). Corrects odometry drift; see docs/fuser.md.
+    #[arg(long)]
+    pub refine_poses: bool,
     /// Frames that must have seen a cell before it can belong to an object.
     #[arg(long, default_value_t = ObjectParams::default().min_views)]
     pub min_views: u16,
@@ -123,9 +128,7 @@ impl FuseArgs {
                 ..ObjectParams::default()
             },
             poses: self.poses,
-            // Not offered yet: measured, it does not improve the shipped tours (see
-            // docs/fuser.md); the library keeps it for that work.
-            refine_poses: false,
+            refine_poses: self.refine_poses,
         }
     }
 }
@@ -242,6 +245,25 @@ pub fn print_summary(f: &Fused) {
             o.cells,
             o.peak_probability,
             o.mean_probability
+        );
+    }
+    if r.options.refine_poses {
+        // How far refinement moved the poses off odometry, and how many frames it localised.
+        let mut localised = 0;
+        let (mut max_m, mut max_deg) = (0.0f64, 0.0f64);
+        for f in &r.per_frame {
+            if f.correction.is_some_and(|c| c.anchors > 0) {
+                localised += 1;
+            }
+            let d = (f.position_m[0] - f.odom_position_m[0])
+                .hypot(f.position_m[1] - f.odom_position_m[1]);
+            let a = objloc::geometry::wrap_angle(f.yaw_rad - f.odom_yaw_rad).to_degrees();
+            max_m = max_m.max(d);
+            max_deg = max_deg.max(a.abs());
+        }
+        println!(
+            "poses refined: {localised} of {} frames localised against landmarks; at most {max_m:.3} m and {max_deg:.1} deg from odometry",
+            r.per_frame.len()
         );
     }
     for w in &r.warnings {

@@ -48,6 +48,15 @@ struct SimArgs {
     /// Relative sigma of the executed driving and turning speeds, e.g. 0.05,0.03.
     #[arg(long, value_name = "TRANS,ROT", default_value = "0.01,0.006")]
     speed_noise: String,
+    /// Systematic turn error: the robot turns (1 + F) times what odometry reports, e.g. 0.03
+    /// (a known heading bias, to test `fuse --refine-poses`).
+    #[arg(
+        long,
+        value_name = "F",
+        default_value_t = 0.0,
+        allow_negative_numbers = true
+    )]
+    turn_bias: f64,
     /// Also write each frame (and a copy with label rectangles) as PNG into DIR.
     #[arg(long, value_name = "DIR")]
     dump_frames: Option<PathBuf>,
@@ -120,6 +129,7 @@ fn run_sim(a: SimArgs) -> anyhow::Result<()> {
         speed_noise: SpeedNoise {
             trans_rel_sigma: trans,
             rot_rel_sigma: rot,
+            rot_rel_bias: a.turn_bias,
         },
         dump_frames: a.dump_frames,
         ..SimOptions::new(a.kind, a.seed)

@@ -360,6 +360,12 @@ pub fn record(
             n.trans_rel_sigma, n.rot_rel_sigma
         )));
     }
+    if n.rot_rel_bias.is_nan() || n.rot_rel_bias.abs() >= 0.5 {
+        return Err(SimError::Options(format!(
+            "turn bias {} must be a fraction in (-0.5, 0.5)",
+            n.rot_rel_bias
+        )));
+    }
     let stops = plan_stops(scene, opts)?;
     let mut robot_rng = Rng::new(opts.seed ^ ROBOT_STREAM);
     let events = robot::simulate(

@@ -28,11 +28,14 @@ pub struct Pose2 {
     pub yaw_rad: f64,
 }
 
-/// Relative standard deviations of the executed speeds.
+/// Relative standard deviations of the executed speeds, and a systematic turn error.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SpeedNoise {
     pub trans_rel_sigma: f64,
     pub rot_rel_sigma: f64,
+    /// The robot turns by (1 + this) times what odometry reports, on every rotation (a
+    /// miscalibrated wheel base): a known heading bias to test pose correction against.
+    pub rot_rel_bias: f64,
 }
 
 impl Default for SpeedNoise {
@@ -40,6 +43,7 @@ impl Default for SpeedNoise {
         Self {
             trans_rel_sigma: 0.01,
             rot_rel_sigma: 0.006,
+            rot_rel_bias: 0.0,
         }
     }
 }
@@ -145,12 +149,15 @@ pub fn simulate(
                 angle_rad: wrap_angle(stop.pose.yaw_rad - heading),
             });
             for c in commands {
-                let (amount, speed, sigma) = match c {
-                    Command::Rotate { angle_rad } => {
-                        (angle_rad, turn_speed_rad_s, noise.rot_rel_sigma)
-                    }
+                let (amount, speed, sigma, bias) = match c {
+                    Command::Rotate { angle_rad } => (
+                        angle_rad,
+                        turn_speed_rad_s,
+                        noise.rot_rel_sigma,
+                        noise.rot_rel_bias,
+                    ),
                     Command::Drive { distance_m } => {
-                        (distance_m, drive_speed_m_s, noise.trans_rel_sigma)
+                        (distance_m, drive_speed_m_s, noise.trans_rel_sigma, 0.0)
                     }
                 };
                 let duration_ms = (amount.abs() / speed * 1000.0).ceil();
@@ -160,7 +167,8 @@ pub fn simulate(
                 let duration_ns = duration_ms as i64 * 1_000_000;
                 // Nominal speed reaches the planned amount exactly in whole milliseconds.
                 let nominal_speed = amount / (duration_ms / 1000.0);
-                let factor = 1.0 + sigma * rng.normal();
+                // Bias 0 leaves the factor, and so every shipped session, as it was.
+                let factor = 1.0 + sigma * rng.normal() + bias;
                 let (lin, ang) = match c {
                     Command::Rotate { .. } => (0.0, nominal_speed),
                     Command::Drive { .. } => (nominal_speed, 0.0),
@@ -250,6 +258,7 @@ mod tests {
         let noise = SpeedNoise {
             trans_rel_sigma: 0.0,
             rot_rel_sigma: 0.0,
+            rot_rel_bias: 0.0,
         };
         let ev = simulate(&stops, 1_000_000_000, 0.3, 0.5, noise, &mut Rng::new(1));
         let cmds: Vec<(i64, f64, f64)> = ev
@@ -300,6 +309,7 @@ mod tests {
         let noise = SpeedNoise {
             trans_rel_sigma: 0.05,
             rot_rel_sigma: 0.0,
+            rot_rel_bias: 0.0,
         };
         let ev = simulate(&stops, 0, 0.25, 0.5, noise, &mut Rng::new(9));
         let mut rng = Rng::new(9);
@@ -314,6 +324,28 @@ mod tests {
             (truth.x_m - 2.0 * factor).abs() < 1e-12,
             "{} {factor}",
             truth.x_m
+        );
+    }
+
+    /// A turn bias of 10 %: a commanded quarter turn ends 0.1 * pi/2 further round, with
+    /// odometry still at the quarter turn.
+    #[test]
+    fn turn_bias_scales_every_rotation() {
+        let stops = [stop(0.0, 0.0, 0.0), stop(0.0, 0.0, PI / 2.0)];
+        let noise = SpeedNoise {
+            trans_rel_sigma: 0.0,
+            rot_rel_sigma: 0.0,
+            rot_rel_bias: 0.1,
+        };
+        let ev = simulate(&stops, 0, 0.25, 0.5, noise, &mut Rng::new(3));
+        let Some(Event::Frame { nominal, truth, .. }) = ev.last() else {
+            panic!()
+        };
+        assert!((nominal.yaw_rad - PI / 2.0).abs() < 1e-12);
+        assert!(
+            (truth.yaw_rad - 1.1 * PI / 2.0).abs() < 1e-12,
+            "{}",
+            truth.yaw_rad
         );
     }
 

@@ -11,7 +11,7 @@ use nalgebra::Point3;
 use rerun::RecordingStream;
 
 use super::{TIMELINE_FRAME, TIMELINE_LOG_TIME, VizError, log_err, viridis};
-use crate::geometry::{Camera, Iso3, iso_from_pose};
+use crate::geometry::{Camera, Iso3, iso_from_pose, yaw_of};
 use crate::grid::{Grid, sigmoid};
 use crate::objects::Object;
 use crate::replay::{FrameStep, Observer, SessionData, TileProbs};
@@ -45,16 +45,24 @@ impl Default for VizOptions {
 const TRUTH_RGB: [u8; 3] = [255, 140, 0];
 const ESTIMATE_RGB: [u8; 3] = [0, 200, 255];
 const ODOM_RGB: [u8; 3] = [220, 220, 220];
+/// The refined trajectory: green, beside odometry's grey and the truth's orange.
+const REFINED_RGB: [u8; 3] = [60, 200, 90];
 
 /// Streams a replay to a recording.
 pub struct FuseViz {
     rec: RecordingStream,
     options: VizOptions,
+    /// Refined robot positions of the frames so far (empty unless refining).
+    refined_track: Vec<[f32; 3]>,
 }
 
 impl FuseViz {
     pub fn new(rec: RecordingStream, options: VizOptions) -> Self {
-        Self { rec, options }
+        Self {
+            rec,
+            options,
+            refined_track: Vec::new(),
+        }
     }
 }
 
@@ -405,6 +413,32 @@ impl FuseViz {
             .map_err(log_err)?;
         }
 
+        if let Some(c) = &step.correction {
+            let t = step.odom_from_base.translation.vector;
+            self.refined_track
+                .push([t.x as f32, t.y as f32, t.z as f32]);
+            let color = rerun::Color::from_rgb(REFINED_RGB[0], REFINED_RGB[1], REFINED_RGB[2]);
+            rec.log(
+                "world/trajectory/refined",
+                &rerun::LineStrips3D::new([self.refined_track.clone()]).with_colors([color]),
+            )
+            .map_err(log_err)?;
+            rec.log(
+                "world/trajectory/refined/frames",
+                &rerun::Points3D::new(self.refined_track.clone())
+                    .with_colors([color])
+                    .with_radii([0.03]),
+            )
+            .map_err(log_err)?;
+            let o = step.odometry.translation.vector;
+            scalar(rec, "plots/correction_m", (t - o).xy().norm())?;
+            scalar(
+                rec,
+                "plots/correction_deg",
+                yaw_of(&(step.odometry.inverse() * step.odom_from_base)).to_degrees(),
+            )?;
+            scalar(rec, "counts/landmarks", c.anchors as f64)?;
+        }
         log_frame_and_probs(rec, "world/robot/camera", &step.image, &step.probs)?;
 
         let strips = pyramids(
