@@ -96,6 +96,27 @@ fn demo_locates_the_chair_and_writes_its_outputs() {
     let header_len = u16::from_le_bytes([npy[8], npy[9]]) as usize;
     assert_eq!(npy.len(), 10 + header_len + 4 * nx * ny * nz);
     assert!(out_dir.join("report.rrd").metadata().unwrap().len() > 100_000);
+    // The drift tour, with and without pose refinement: "  NAME  objects  err m  odom-ATE m  ATE m".
+    let row = |name: &str| -> Vec<f64> {
+        let line = text
+            .lines()
+            .find(|l| l.trim_start().starts_with(name))
+            .unwrap_or_else(|| panic!("no {name} row in:\n{text}"));
+        line.split_whitespace()
+            .skip(1)
+            .filter(|w| *w != "m")
+            .map(|w| w.parse().unwrap_or_else(|_| panic!("{line:?}")))
+            .collect()
+    };
+    let (plain, refined) = (row("drift-odometry"), row("drift-refined"));
+    // Measured 0.407 m and 0.057 m; trajectory 0.488 m and 0.316 m (docs/fuser.md).
+    assert_eq!(refined[0], 1.0, "{refined:?}");
+    assert!(plain[1] > 0.3 && refined[1] < 0.08, "{plain:?} {refined:?}");
+    assert!(
+        refined[3] < refined[2],
+        "refined ATE not below odometry's: {refined:?}"
+    );
+    assert!(out_dir.join("drift-refined.json").exists());
     // Nothing left half-written.
     for e in std::fs::read_dir(&out_dir).unwrap() {
         let name = e.unwrap().file_name();
