@@ -19,16 +19,18 @@
 //! projection of one 3D point to within 1-3 pixels across views (the centroid of the object's
 //! visible colour), while the belief's own shape is 5-15 pixels off in every view (its hull
 //! is bloated along the earlier views' rays, and the chair's shadow and thin legs differ).
-//! Aligning to the belief's shape pulled even exact poses 0.1-0.3 m off; aligning to
-//! triangulated centroids leaves them alone. docs/fuser.md has the numbers.
+//! Aligning to the belief's shape pulled even exact poses 0.1-0.5 m off over a tour; aligning
+//! to triangulated centroids moves them by 1-3 pixels' worth per frame (up to 0.08 m over the
+//! chair tour). docs/fuser.md has the numbers.
 //!
 //! What one object can and cannot fix: its image position fixes the bearing, its height in
 //! the image (weakly) the range; sliding around the object while turning to keep it in view
 //! is unobservable and left to the motion model.
 //!
 //! The search is a fixed grid in the motion model's whitened coordinates (+-3 sigma in 9 steps
-//! per axis) followed by finer 3x3x3 grids around the best candidate: deterministic, and the
-//! best is chosen by (score, candidate index).
+//! per axis) followed by finer 3x3x3 grids around the best candidate, evaluated in a fixed
+//! order with ties going to the first: deterministic, and sequential (a few landmarks make
+//! each candidate cheap), so the thread count cannot matter.
 //!
 //! Invariants: pure functions of their inputs, no I/O; without a landmark seen in the frame
 //! the correction is zero.
@@ -69,7 +71,7 @@ pub const FLOOR_SIGMA_YAW_RAD: f64 = 0.005;
 
 /// Half-width of the coarse search, in standard deviations of the motion model.
 const SEARCH_SIGMAS: f64 = 3.0;
-/// Steps of the coarse search per axis (odd, so that no correction is a candidate).
+/// Steps of the coarse search per axis (odd, so that zero correction is a candidate).
 const COARSE_STEPS: i32 = 9;
 /// Finer 3x3x3 rounds around the best candidate, each at half the previous step.
 const FINE_ROUNDS: usize = 4;

@@ -4,6 +4,8 @@
 //! truth) so that every frame's pose can be interpolated from the odometry around its stamp.
 //! Pass 2 walks the frames in (log_time, channel id, sequence) order: blur the belief by the
 //! commands executed since the previous frame, classify the frame's tiles, integrate them.
+//! With pose refinement each frame is first localised against the landmarks of the frames
+//! before it ([`crate::refine`]); a localised frame is not blurred.
 //! Observers (Rerun, the report) see each step; they cannot change it.
 //!
 //! Invariants: no clock, no randomness, no unordered iteration: the same session, model and
