@@ -32,8 +32,11 @@
 //! order with ties going to the first: deterministic, and sequential (a few landmarks make
 //! each candidate cheap), so the thread count cannot matter.
 //!
-//! Invariants: pure functions of their inputs, no I/O; without a landmark seen in the frame
-//! the correction is zero.
+//! A correction is applied only when it raises the score by [`MIN_GAIN`]: smaller ones fit
+//! the noise of the detections, and applied they compound into drift.
+//!
+//! Invariants: pure functions of their inputs, no I/O; without a landmark seen in the frame,
+//! or without a significant gain, the correction is zero.
 
 use nalgebra::{
     Matrix2, Matrix2x3, Matrix3, Point3, SymmetricEigen, Translation3, UnitQuaternion, Vector2,
@@ -63,6 +66,13 @@ pub const MAX_RAY_CHI2: f64 = 11.8;
 /// at least 15 degrees apart (1 - cos 15 deg = 0.034).
 pub const MIN_RAY_SPREAD: f64 = 0.034;
 
+/// Smallest gain in score (log-likelihood plus log prior, nats) for a correction to be
+/// applied. Measured: with exact odometry the best correction gains 0-0.8 (it fits the 1-3 px
+/// noise of the detection centroids), with real drift 3-40; applying the small ones only
+/// compounds that noise into drift along the direction one object cannot observe (exact
+/// odometry: ATE 0.048 m applied, 0.004 m gated).
+pub const MIN_GAIN: f64 = 0.5;
+
 /// Smallest standard deviations of the motion model, added to the propagated covariance:
 /// they keep it invertible after a frame without motion and let a frame settle within a
 /// fraction of a tile of its neighbours.
@@ -89,6 +99,10 @@ pub struct Correction {
     pub gain: f64,
     /// Landmarks the frame was aligned to (each paired with a detection cluster).
     pub anchors: usize,
+    /// Whether the correction was applied: it must raise the score by [`MIN_GAIN`]; when not,
+    /// dx, dy and dyaw are 0 and the frame is treated as not localised.
+    #[serde(default)]
+    pub applied: bool,
 }
 
 impl Correction {
@@ -98,6 +112,7 @@ impl Correction {
         dyaw_rad: 0.0,
         gain: 0.0,
         anchors: 0,
+        applied: false,
     };
 
     /// Applies the correction to a robot pose in `odom`: the heading turns about the robot's
@@ -476,13 +491,22 @@ pub fn refine(
         span = 1;
         step /= 2.0;
     }
+    let gain = best.0 - base_score;
+    if gain < MIN_GAIN {
+        return Correction {
+            gain,
+            anchors: pairs.len(),
+            ..Correction::ZERO
+        };
+    }
     let d = l * best.1;
     Correction {
         dx_m: d.x,
         dy_m: d.y,
         dyaw_rad: d.z,
-        gain: best.0 - base_score,
+        gain,
         anchors: pairs.len(),
+        applied: true,
     }
 }
 
@@ -605,15 +629,13 @@ mod tests {
         let cov = Matrix3::from_diagonal(&Vector3::new(0.0001, 0.0001, 0.0025));
         let (c, truth) = localise_case(iso_from_xy_yaw(-2.8, 0.0, 0.08), cov);
         assert!((c.dyaw_rad + 0.08).abs() < 0.005, "{c:?}");
-        assert!(c.gain > 0.0 && c.anchors == 1);
+        assert!(c.gain > MIN_GAIN && c.anchors == 1 && c.applied);
         let fixed = c.apply(&iso_from_xy_yaw(-2.8, 0.0, 0.08));
         assert!(yaw_of(&(truth.inverse() * fixed)).abs() < 0.005);
-        // Exact odometry: no correction beyond the search's finest step.
+        // Exact odometry: nothing to gain, nothing applied.
         let (c0, _) = localise_case(truth, cov);
-        assert!(
-            c0.dyaw_rad.abs() < 1e-3 && c0.dx_m.abs() < 1e-3 && c0.dy_m.abs() < 1e-3,
-            "{c0:?}"
-        );
+        assert!(!c0.applied && c0.gain < MIN_GAIN, "{c0:?}");
+        assert_eq!((c0.dx_m, c0.dy_m, c0.dyaw_rad), (0.0, 0.0, 0.0));
     }
 
     /// The robot is 0.2 m to the side of where odometry says, heading known well: the

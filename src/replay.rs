@@ -686,7 +686,7 @@ pub fn replay(
             ));
         }
         let odom_from_base = poses[index];
-        let localised = correction.is_some_and(|c| c.anchors > 0);
+        let localised = correction.is_some_and(|c| c.applied);
         let segments = fuse_one(&mut fuser, &data, &prepared, &poses, index, localised);
         let odom_from_camera = odom_from_base * data.base_from_camera;
         let cells_updated = fuser.last_cells_updated;

@@ -252,7 +252,7 @@ pub fn print_summary(f: &Fused) {
         let mut localised = 0;
         let (mut max_m, mut max_deg) = (0.0f64, 0.0f64);
         for f in &r.per_frame {
-            if f.correction.is_some_and(|c| c.anchors > 0) {
+            if f.correction.is_some_and(|c| c.applied) {
                 localised += 1;
             }
             let d = (f.position_m[0] - f.odom_position_m[0])
@@ -262,7 +262,7 @@ pub fn print_summary(f: &Fused) {
             max_deg = max_deg.max(a.abs());
         }
         println!(
-            "poses refined: {localised} of {} frames localised against landmarks; at most {max_m:.3} m and {max_deg:.1} deg from odometry",
+            "poses refined: {localised} of {} frames corrected against landmarks; at most {max_m:.3} m and {max_deg:.1} deg from odometry",
             r.per_frame.len()
         );
     }
