@@ -14,14 +14,17 @@ out=target/measure-refine
 mkdir -p "$out"
 "$bin" train recordings/chair-train.mcap -o "$out/chair.json" --save "$out/chair-train.rrd" >/dev/null
 "$bin" train recordings/bottle-train.mcap -o "$out/bottle.json" --save "$out/bottle-train.rrd" >/dev/null
-# The chair tour again with no random noise and a systematic turn error (and none).
+# The chair tour again with no random noise and a systematic turn error (and none), and a
+# 200-stop chair tour at the default noise (does refinement stay put over a long session?).
 for bias in 0 0.02 0.03 -0.03; do
   [ -f "$out/bias$bias.mcap" ] || "$bin" record sim --scene chair --kind tour --seed 2 \
     --speed-noise 0,0 --turn-bias "$bias" -o "$out/bias$bias.mcap" >/dev/null 2>&1
 done
+[ -f "$out/long200.mcap" ] || "$bin" record sim --scene chair --kind tour --seed 9 --stops 200 \
+  -o "$out/long200.mcap" >/dev/null 2>&1
 printf '%-22s %-10s %-14s %8s %-14s %9s %9s %8s\n' session poses refine spurious "errors (m)" "odom ATE" "ATE" "time ms"
 for s in recordings/chair-tour recordings/two-chairs-tour recordings/bottle-tour recordings/chair-tour-drift \
-         "$out/bias0" "$out/bias0.02" "$out/bias0.03" "$out/bias-0.03"; do
+         "$out/bias0" "$out/bias0.02" "$out/bias0.03" "$out/bias-0.03" "$out/long200"; do
   model="$out/chair.json"; [ "$(basename "$s")" = bottle-tour ] && model="$out/bottle.json"
   for run in "odometry no" "odometry yes" "ground-truth yes"; do
     set -- $run

@@ -109,7 +109,7 @@ fn demo_locates_the_chair_and_writes_its_outputs() {
             .collect()
     };
     let (plain, refined) = (row("drift-odometry"), row("drift-refined"));
-    // Measured 0.407 m and 0.057 m; trajectory 0.488 m and 0.316 m (docs/fuser.md).
+    // Measured 0.407 m and 0.059 m; trajectory 0.488 m and 0.350 m (docs/fuser.md).
     assert_eq!(refined[0], 1.0, "{refined:?}");
     assert!(plain[1] > 0.3 && refined[1] < 0.08, "{plain:?} {refined:?}");
     assert!(
