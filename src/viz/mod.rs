@@ -140,7 +140,12 @@ impl clap::Args for VizArgs {
         // RerunArgs carries `#[clap(author, version, about)]`, which would replace the
         // subcommand's own about text; keep ours.
         let about = cmd.get_about().cloned();
-        let cmd = rerun::clap::RerunArgs::augment_args(cmd).next_help_heading("Rerun");
+        // RerunArgs spells `--stdout` also `-o`, which our commands use for their output
+        // file: two args with one short flag make clap's debug build panic and leave the
+        // release build's choice to declaration order. `--stdout` stays.
+        let cmd = rerun::clap::RerunArgs::augment_args(cmd)
+            .mut_arg("stdout", |a| a.short(None))
+            .next_help_heading("Rerun");
         match about {
             Some(a) => cmd.about(a),
             None => cmd,
