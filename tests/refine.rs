@@ -3,10 +3,11 @@
 //! odometry, fused with and without `--refine-poses`, scored by `objloc eval --json`.
 //!
 //! Tolerances (docs/fuser.md has the measurements behind them): with the bias, the chair is
-//! found within 0.08 m (0.18 m without refinement) and the refined trajectory's ATE is below
-//! odometry's; with exact odometry, refinement moves no pose more than 0.03 m or 1.5 degrees
-//! (measured 0.012 m and 0.8 degrees, on the one frame of eight whose correction passed the
-//! significance threshold).
+//! found within 0.12 m and with at least a quarter of the error gone (measured 0.101 m,
+//! 0.164 m without refinement) and the refined trajectory's ATE is below odometry's; with
+//! exact odometry, refinement moves no pose more than 0.03 m or 1.5 degrees (measured: no
+//! correction passes the significance threshold, so nothing moves; with the previous
+//! classifier one frame moved 0.012 m and 0.8 degrees) and does not worsen the chair.
 //!
 //! Invariants: every test writes into its own temporary directory; the model is trained by
 //! the binary from recordings/chair-train.mcap.
@@ -133,10 +134,11 @@ fn refinement_corrects_a_known_turn_bias() {
     let (_, plain) = fuse_and_eval(&tour, &model, false, "2");
     let (report, refined) = fuse_and_eval(&tour, &model, true, "2");
     let (e_plain, e_refined) = (chair_error(&plain), chair_error(&refined));
-    // Measured 0.179 m without and 0.058 m with refinement.
+    // Measured 0.164 m without and 0.101 m with refinement (docs/fuser.md). Tolerance: the
+    // issue's 0.12 m for realistic noise, and at least a quarter of the error removed.
     assert!(e_plain > 0.15, "the bias should hurt: {e_plain}");
     assert!(
-        e_refined < 0.08,
+        e_refined < 0.12 && e_refined < 0.75 * e_plain,
         "refined error {e_refined} (plain {e_plain})"
     );
     let t = &refined["trajectory"];
@@ -193,12 +195,14 @@ fn refinement_leaves_exact_odometry_within_tolerance() {
         let d = f["yaw_rad"].as_f64().unwrap() - f["odom_yaw_rad"].as_f64().unwrap();
         let turned = ((d + PI).rem_euclid(2.0 * PI) - PI).to_degrees().abs();
         assert!(
-            moved < 0.1 && turned < 2.0,
+            moved < 0.03 && turned < 1.5,
             "frame {}: {moved} m, {turned} deg",
             f["index"]
         );
     }
-    // Measured 0.047 m without and 0.051 m with refinement.
-    assert!(chair_error(&plain) < 0.07);
-    assert!(chair_error(&refined) < 0.07);
+    // Measured 0.081 m both without and with refinement: what is left is the classifier's
+    // and the fusion's, which refinement must not make worse.
+    let (e_plain, e_refined) = (chair_error(&plain), chair_error(&refined));
+    assert!(e_plain < 0.1, "{e_plain}");
+    assert!(e_refined < e_plain + 0.02, "{e_refined} vs {e_plain}");
 }

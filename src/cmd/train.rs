@@ -44,6 +44,15 @@ pub struct Args {
     /// Stop growth after this many expansions without a better test log-loss.
     #[arg(long, default_value_t = TreeParams::default().patience)]
     patience: usize,
+    /// Pseudo-examples per leaf added to the pruning third at the leaf's training fraction,
+    /// so that a handful of pruning examples cannot condense a well-supported split (0: the
+    /// bare pruning third, as in the paper).
+    #[arg(long = "prune-pseudo", default_value_t = TreeParams::default().prune_pseudo)]
+    prune_pseudo: f64,
+    /// Weight w of the base rate mixed into every leaf, p = (1 - w) * m-estimate + w * base
+    /// rate: bounds the evidence one tile can give against the object (0: none).
+    #[arg(long = "base-mix", default_value_t = TreeParams::default().base_mix)]
+    base_mix: f64,
     /// Also write the examples as X.npy, y.npy, split.npy into this directory.
     #[arg(long = "export-features", value_name = "DIR")]
     export_features: Option<PathBuf>,
@@ -64,6 +73,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         tree: TreeParams {
             m_estimate: args.m_estimate,
             patience: args.patience,
+            prune_pseudo: args.prune_pseudo,
+            base_mix: args.base_mix,
             ..TreeParams::default()
         },
     };
@@ -71,6 +82,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         cfg.tree.m_estimate.is_finite() && cfg.tree.m_estimate > 0.0,
         "--m-estimate {} must be a positive number",
         cfg.tree.m_estimate
+    );
+    anyhow::ensure!(
+        cfg.tree.prune_pseudo.is_finite() && cfg.tree.prune_pseudo >= 0.0,
+        "--prune-pseudo {} must be a number >= 0",
+        cfg.tree.prune_pseudo
+    );
+    anyhow::ensure!(
+        (0.0..1.0).contains(&cfg.tree.base_mix),
+        "--base-mix {} must be in [0, 1)",
+        cfg.tree.base_mix
     );
     let t0 = Instant::now();
     let sessions = args
