@@ -360,3 +360,41 @@ fn fuse_refuses_bad_input_with_one_line_errors_and_no_outputs() {
         );
     }
 }
+
+#[test]
+fn reports_match_their_published_schema() {
+    // Validated by the jsonschema package against schemas/report.schema.json, which closes
+    // every object (additionalProperties: false), so a field renamed or added in the code
+    // but not in the schema fails here. A plain and a refined report cover every field.
+    let dir = tempfile::tempdir().unwrap();
+    let model = train(dir.path());
+    let mut reports = Vec::new();
+    for (name, extra) in [("plain", None), ("refined", Some("--refine-poses"))] {
+        let rep = dir.path().join(format!("{name}.json"));
+        let mut args = vec![
+            "fuse",
+            "recordings/chair-tour-drift.mcap",
+            "--model",
+            p(&model),
+            "--report",
+            p(&rep),
+        ];
+        args.extend(extra);
+        ok(&objloc(&args, &[]));
+        reports.push(rep);
+    }
+    let refined = report(&reports[1]);
+    assert!(
+        refined["per_frame"][3]["correction"]["applied"].is_boolean(),
+        "{refined}"
+    );
+    let out = run_checked(
+        Command::new(python())
+            .arg(repo_dir().join("tests/py/validate_report.py"))
+            .arg(repo_dir().join("schemas/report.schema.json"))
+            .args(&reports),
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
+    let v: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v["valid"], 2, "{v}");
+}
