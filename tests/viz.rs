@@ -81,7 +81,8 @@ from rerun.experimental import RrdReader
 out = {}
 for chunk in RrdReader(sys.argv[1]).stream():
     b = chunk.to_record_batch()
-    e = out.setdefault(chunk.entity_path, {"static": chunk.is_static, "columns": [], "log_time": [], "frame": []})
+    e = out.setdefault(chunk.entity_path, {"static": True, "columns": [], "log_time": [], "frame": []})
+    e["static"] = e["static"] and chunk.is_static
     for n in b.schema.names:
         if not n.startswith("rerun.controls") and n not in e["columns"]:
             e["columns"].append(n)
@@ -145,8 +146,15 @@ fn fuse_recording_verifies_holds_the_documented_entities_and_replays_equal() {
             "/world/robot",
             &["Transform3D:quaternion", "Transform3D:translation"],
         ),
-        ("/world/trajectory/odom", &["LineStrips3D:strips"]),
-        ("/world/trajectory/truth", &["LineStrips3D:strips"]),
+        // Trajectories beside the robot, declared to be in the world's frame.
+        (
+            "/world/robot/odometry",
+            &["LineStrips3D:strips", "CoordinateFrame:frame"],
+        ),
+        (
+            "/world/robot/ground_truth",
+            &["LineStrips3D:strips", "CoordinateFrame:frame"],
+        ),
         (
             "/world/robot/camera/image",
             &["Image:buffer", "Image:format"],
@@ -378,5 +386,50 @@ fn timing_with_and_without_rerun() {
         "replay {:.3} s, replay + rrd {:.3} s, rrd {mb:.2} MB",
         plain.as_secs_f64(),
         with.as_secs_f64()
+    );
+}
+
+#[test]
+fn refined_replay_streams_the_refined_trajectory_beside_the_robot_in_world_coordinates() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = trained_model(dir.path());
+    let rrd = dir.path().join("refined.rrd");
+    let out = Command::new(env!("CARGO_BIN_EXE_objloc"))
+        .current_dir(repo_dir())
+        .args(["fuse", "recordings/chair-tour-drift.mcap", "--refine-poses"])
+        .arg("--model")
+        .arg(&model)
+        .arg("--report")
+        .arg(dir.path().join("r.json"))
+        .arg("--save")
+        .arg(&rrd)
+        .output()
+        .expect("objloc runs");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v = rrd_entities(&rrd);
+    for (entity, want) in [
+        ("/world/robot/refined", "LineStrips3D:strips"),
+        ("/world/robot/refined/frames", "Points3D:positions"),
+        ("/world/robot/odometry", "LineStrips3D:strips"),
+        ("/world/robot/ground_truth", "LineStrips3D:strips"),
+        ("/plots/correction_m", "Scalars:scalars"),
+    ] {
+        let cols = columns(&v, entity);
+        assert!(cols.iter().any(|c| c == want), "{entity}: {cols:?}");
+        if entity.starts_with("/world/robot/") {
+            assert!(
+                cols.iter().any(|c| c == "CoordinateFrame:frame"),
+                "{entity}: {cols:?}"
+            );
+        }
+    }
+    // One refined position per frame after the anchoring first one.
+    assert_eq!(
+        v["/world/robot/refined"]["frame"].as_array().unwrap().len(),
+        7
     );
 }

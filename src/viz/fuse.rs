@@ -48,6 +48,16 @@ const ODOM_RGB: [u8; 3] = [220, 220, 220];
 /// The refined trajectory: green, beside odometry's grey and the truth's orange.
 const REFINED_RGB: [u8; 3] = [60, 200, 90];
 
+/// Trajectory entities, drawn in `world` coordinates under the moving `world/robot`.
+const TRACKS: [&str; 4] = [
+    "world/robot/odometry",
+    "world/robot/ground_truth",
+    "world/robot/refined",
+    "world/robot/refined/frames",
+];
+/// Rerun's implicit frame of the `world` entity.
+const WORLD_FRAME: &str = "tf#/world";
+
 /// Streams a replay to a recording.
 pub struct FuseViz {
     rec: RecordingStream,
@@ -347,6 +357,13 @@ impl FuseViz {
             .map_err(log_err)?;
         rec.log_static("world/robot/camera", &transform(&data.base_from_camera))
             .map_err(log_err)?;
+        // The trajectories live beside the robot they trace (`world/robot/...`) but are in
+        // world coordinates: each declares the `world` entity's frame as its own, so the
+        // robot's moving transform does not carry them along.
+        for track in TRACKS {
+            rec.log_static(track, &rerun::CoordinateFrame::new(WORLD_FRAME))
+                .map_err(log_err)?;
+        }
         let c = &data.camera;
         rec.log_static(
             "world/robot/camera",
@@ -394,7 +411,7 @@ impl FuseViz {
             .map_err(log_err)?;
         let stamp = step.frame.stamp_ns;
         rec.log(
-            "world/trajectory/odom",
+            "world/robot/odometry",
             &rerun::LineStrips3D::new([track_until(&data.odom, stamp)]).with_colors([
                 rerun::Color::from_rgb(ODOM_RGB[0], ODOM_RGB[1], ODOM_RGB[2]),
             ]),
@@ -402,7 +419,7 @@ impl FuseViz {
         .map_err(log_err)?;
         if !data.ground_truth_poses.is_empty() {
             rec.log(
-                "world/trajectory/truth",
+                "world/robot/ground_truth",
                 &rerun::LineStrips3D::new([track_until(&data.ground_truth_poses, stamp)])
                     .with_colors([rerun::Color::from_rgb(
                         TRUTH_RGB[0],
@@ -419,12 +436,12 @@ impl FuseViz {
                 .push([t.x as f32, t.y as f32, t.z as f32]);
             let color = rerun::Color::from_rgb(REFINED_RGB[0], REFINED_RGB[1], REFINED_RGB[2]);
             rec.log(
-                "world/trajectory/refined",
+                "world/robot/refined",
                 &rerun::LineStrips3D::new([self.refined_track.clone()]).with_colors([color]),
             )
             .map_err(log_err)?;
             rec.log(
-                "world/trajectory/refined/frames",
+                "world/robot/refined/frames",
                 &rerun::Points3D::new(self.refined_track.clone())
                     .with_colors([color])
                     .with_radii([0.03]),
