@@ -427,9 +427,38 @@ fn refined_replay_streams_the_refined_trajectory_beside_the_robot_in_world_coord
             );
         }
     }
-    // One refined position per frame after the anchoring first one.
+    // Logged at each frame after the anchoring first one; the last track holds all 8
+    // positions, starting at the first frame's, which is /odom's there.
     assert_eq!(
         v["/world/robot/refined"]["frame"].as_array().unwrap().len(),
         7
     );
+    let python = rerun_cli().with_file_name("python");
+    let out = run_checked(
+        Command::new(python)
+            .arg(repo_dir().join("tests/py/rrd_contents.py"))
+            .arg(&rrd),
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
+    let chunks: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let last_points = chunks
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|c| c["entity"] == "/world/robot/refined/frames")
+        .filter_map(|c| c["columns"]["Points3D:positions"].as_array())
+        .flat_map(|rows| rows.iter())
+        .next_back()
+        .expect("refined positions")
+        .clone();
+    let points = last_points.as_array().unwrap();
+    assert_eq!(points.len(), 8, "{last_points}");
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.path().join("r.json")).unwrap()).unwrap();
+    let first = &report["per_frame"][0]["odom_position_m"];
+    for a in 0..2 {
+        let got = points[0][a].as_f64().unwrap();
+        let want = first[a].as_f64().unwrap();
+        assert!((got - want).abs() < 1e-5, "{got} vs {want}");
+    }
 }

@@ -64,6 +64,9 @@ pub struct FuseViz {
     options: VizOptions,
     /// Refined robot positions of the frames so far (empty unless refining).
     refined_track: Vec<[f32; 3]>,
+    /// The first frame's position: it anchors the refined trajectory, which starts there
+    /// although that frame carries no correction.
+    first_position: Option<[f32; 3]>,
 }
 
 impl FuseViz {
@@ -72,6 +75,7 @@ impl FuseViz {
             rec,
             options,
             refined_track: Vec::new(),
+            first_position: None,
         }
     }
 }
@@ -430,10 +434,18 @@ impl FuseViz {
             .map_err(log_err)?;
         }
 
+        let t = step.odom_from_base.translation.vector;
+        let here = [t.x as f32, t.y as f32, t.z as f32];
+        if self.first_position.is_none() {
+            self.first_position = Some(here);
+        }
         if let Some(c) = &step.correction {
-            let t = step.odom_from_base.translation.vector;
-            self.refined_track
-                .push([t.x as f32, t.y as f32, t.z as f32]);
+            if self.refined_track.is_empty()
+                && let Some(first) = self.first_position.filter(|_| step.index > 0)
+            {
+                self.refined_track.push(first);
+            }
+            self.refined_track.push(here);
             let color = rerun::Color::from_rgb(REFINED_RGB[0], REFINED_RGB[1], REFINED_RGB[2]);
             rec.log(
                 "world/robot/refined",
