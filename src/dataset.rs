@@ -17,7 +17,7 @@ use std::path::{Path, PathBuf};
 use rayon::prelude::*;
 use thiserror::Error;
 
-use crate::features::{FeatureKind, TileFeature, tile_histograms};
+use crate::features::{FeatureKind, TileFeature, tile_histograms, with_context};
 use crate::msgs::RegionOfInterest;
 use crate::session::{At, Frame, Rgb8, SessionError, SessionMsg, SessionReader, Topics};
 use crate::tree::{Examples, Third};
@@ -178,6 +178,9 @@ pub struct ExampleParams {
     /// Shift between the extra training grids; = tile_px for the aligned grid only.
     pub train_stride_px: u32,
     pub seed: u64,
+    /// Radius in tiles of the neighbourhood histogram appended to each tile's
+    /// ([`crate::features::with_context`]); 0 = the tile alone.
+    pub context_tiles: u32,
 }
 
 impl ExampleParams {
@@ -250,7 +253,10 @@ pub fn build_examples(
             offsets
                 .iter()
                 .map(|&(dx, dy)| {
-                    let h = tile_histograms(img, &feature, t, dx, dy);
+                    let h = with_context(
+                        tile_histograms(img, &feature, t, dx, dy),
+                        params.context_tiles,
+                    );
                     let mut labels = Vec::with_capacity(h.rows * h.cols);
                     for r in 0..h.rows {
                         for c in 0..h.cols {
@@ -264,7 +270,7 @@ pub fn build_examples(
                 .collect()
         })
         .collect();
-    let bins = feature.bins();
+    let bins = feature.bins() * if params.context_tiles > 0 { 2 } else { 1 };
     let denom = (t * t) as u16;
     let mut ex = Examples::new(bins, denom);
     // Aligned grid first (offset index 0 is (0, 0)); its thirds are assigned together.

@@ -218,6 +218,62 @@ pub fn whole_tiles(len_px: u32, offset_px: u32, tile_px: u32) -> usize {
     ((len_px - offset_px) / tile_px) as usize
 }
 
+/// Appends to every tile's histogram the mean histogram of the tiles within `radius` tiles
+/// of it (a (2 radius + 1)^2 window of the same grid, clipped at the image edge), rounded to
+/// whole counts of one tile, so both halves share the tile's denominator: `bins` doubles and
+/// feature `bins + b` is "fraction of pixels in bin b around the tile". `radius` 0 returns
+/// the histograms unchanged.
+///
+/// Why: labels are rectangles, and an object such as a chair is mostly holes, so many
+/// positive tiles show only the background seen through it; what tells them apart from the
+/// same background elsewhere is the object around them (docs/tree.md).
+pub fn with_context(h: TileHistograms, radius: u32) -> TileHistograms {
+    if radius == 0 {
+        return h;
+    }
+    let (rows, cols, bins) = (h.rows, h.cols, h.bins);
+    let r = radius as usize;
+    // Summed-area table over the grid, per bin: window sums in O(1).
+    let stride = cols + 1;
+    let mut sat = vec![0u32; (rows + 1) * stride * bins];
+    for y in 0..rows {
+        for x in 0..cols {
+            let t = h.tile(y * cols + x);
+            for b in 0..bins {
+                let above = sat[(y * stride + x + 1) * bins + b];
+                let left = sat[((y + 1) * stride + x) * bins + b];
+                let diag = sat[(y * stride + x) * bins + b];
+                sat[((y + 1) * stride + x + 1) * bins + b] = t[b] as u32 + above + left - diag;
+            }
+        }
+    }
+    let out_bins = 2 * bins;
+    let mut counts = vec![0u16; rows * cols * out_bins];
+    for y in 0..rows {
+        let (y0, y1) = (y.saturating_sub(r), (y + r + 1).min(rows));
+        for x in 0..cols {
+            let (x0, x1) = (x.saturating_sub(r), (x + r + 1).min(cols));
+            let n = ((y1 - y0) * (x1 - x0)) as u32;
+            let out = &mut counts[(y * cols + x) * out_bins..(y * cols + x + 1) * out_bins];
+            out[..bins].copy_from_slice(h.tile(y * cols + x));
+            for b in 0..bins {
+                let sum = sat[(y1 * stride + x1) * bins + b] + sat[(y0 * stride + x0) * bins + b]
+                    - sat[(y0 * stride + x1) * bins + b]
+                    - sat[(y1 * stride + x0) * bins + b];
+                // Rounded mean; at most one tile's pixel count, so it fits.
+                out[bins + b] = ((sum + n / 2) / n) as u16;
+            }
+        }
+    }
+    TileHistograms {
+        rows,
+        cols,
+        tile_px: h.tile_px,
+        bins: out_bins,
+        counts,
+    }
+}
+
 /// Histograms of the grid of whole tiles starting at pixel (`dx`, `dy`).
 /// `tile_px` must be at least 1 and at most 255 (counts are u16).
 pub fn tile_histograms(
@@ -263,6 +319,29 @@ pub fn tile_histograms(
 mod tests {
     use super::*;
     use crate::session::Rgb8;
+
+    #[test]
+    fn context_appends_the_rounded_mean_of_the_window_clipped_at_the_edge() {
+        // A 2 x 3 grid of tiles of 4 pixels, 2 bins: bin 0 counts 0, 1, 2 / 3, 4, 4.
+        let tiles = [[0u16, 4], [1, 3], [2, 2], [3, 1], [4, 0], [4, 0]];
+        let h = TileHistograms {
+            rows: 2,
+            cols: 3,
+            tile_px: 2,
+            bins: 2,
+            counts: tiles.iter().flatten().copied().collect(),
+        };
+        assert_eq!(with_context(h.clone(), 0), h);
+        let c = with_context(h, 1);
+        assert_eq!((c.rows, c.cols, c.bins), (2, 3, 4));
+        // Tile (0,0): window (0..2, 0..2) = bin-0 counts 0, 1, 3, 4: sum 8, mean 2 (bin 1:
+        // 8 / 4 = 2). Tile (0,1): all six tiles, bin 0 sum 14 -> 14/6 = 2.33 -> 2, bin 1 sum 10
+        // -> 1.67 -> 2. Tile (1,2): (0..2, 1..3) = 1, 2, 4, 4: sum 11 -> 2.75 -> 3; bin 1: 5 ->
+        // 1.25 -> 1.
+        assert_eq!(c.tile(0), &[0, 4, 2, 2]);
+        assert_eq!(c.tile(1), &[1, 3, 2, 2]);
+        assert_eq!(c.tile(5), &[4, 0, 3, 1]);
+    }
 
     #[test]
     fn rgb332_bins_by_hand() {

@@ -15,11 +15,13 @@ use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
 use crate::dataset::{ExampleParams, ExampleSet, LoadedSession, TILE_PX_RANGE, build_examples};
-use crate::features::{FeatureKind, TileFeature, tile_histograms};
+use crate::features::{FeatureKind, TileFeature, tile_histograms, with_context};
 use crate::session::Rgb8;
 use crate::tree::{Examples, FitReport, Metrics, Third, Tree, TreeError, TreeParams, fit, metrics};
 
 pub const MODEL_VERSION: u32 = 1;
+/// Largest neighbourhood radius a model may ask for (a 9 x 9 window of tiles).
+pub const MAX_CONTEXT_TILES: u32 = 4;
 
 #[derive(Debug, Error)]
 pub enum ModelError {
@@ -101,6 +103,10 @@ pub struct Model {
     pub version: u32,
     pub features: FeatureKind,
     pub tile_px: u32,
+    /// Radius in tiles of the neighbourhood histogram appended to each tile's (0 = none;
+    /// absent in models written before it existed).
+    #[serde(default)]
+    pub context_tiles: u32,
     pub tree: Tree,
     /// Fraction of positive training examples: the fuser's prior.
     pub base_rate: f64,
@@ -202,12 +208,19 @@ impl Model {
                 TILE_PX_RANGE.end()
             )));
         }
-        if self.tree.n_features != self.features.bins() {
+        if self.context_tiles > MAX_CONTEXT_TILES {
             return Err(Ok(format!(
-                "tree has {} features but feature spec {:?} has {} bins",
+                "context radius {} tiles is over {MAX_CONTEXT_TILES}",
+                self.context_tiles
+            )));
+        }
+        if self.tree.n_features != self.n_features() {
+            return Err(Ok(format!(
+                "tree has {} features but feature spec {:?} (context {} tiles) has {}",
                 self.tree.n_features,
                 self.features.name(),
-                self.features.bins()
+                self.context_tiles,
+                self.n_features()
             )));
         }
         if !(self.base_rate > 0.0 && self.base_rate < 1.0) {
@@ -234,7 +247,10 @@ impl Model {
     /// Probability per tile of a frame, row-major, tiles aligned at pixel (0,0), partial edge
     /// tiles dropped.
     pub fn predict(&self, img: &Rgb8) -> ProbMap {
-        let h = tile_histograms(img, &self.features, self.tile_px, 0, 0);
+        let h = with_context(
+            tile_histograms(img, &self.features, self.tile_px, 0, 0),
+            self.context_tiles,
+        );
         let denom = (self.tile_px * self.tile_px) as f64;
         let p = (0..h.rows * h.cols)
             .map(|t| self.tree.predict_counts(h.tile(t), denom) as f32)
@@ -244,6 +260,28 @@ impl Model {
             cols: h.cols,
             tile_px: self.tile_px,
             p,
+        }
+    }
+
+    /// Features the tree reads: the tile's histogram, then the neighbourhood's if any.
+    pub fn n_features(&self) -> usize {
+        self.features.bins() * if self.context_tiles > 0 { 2 } else { 1 }
+    }
+
+    /// A tree feature in words, e.g. "bin 96 (red 96-127, ...)" or, for the neighbourhood
+    /// half, "bin 96 within 1 tile around (red 96-127, ...)".
+    pub fn describe_feature(&self, feature: usize) -> String {
+        let bins = self.features.bins();
+        if feature < bins {
+            format!("bin {feature}: {}", self.features.describe_bin(feature))
+        } else {
+            let b = feature - bins;
+            let r = self.context_tiles;
+            format!(
+                "bin {b} within {r} tile{} around: {}",
+                if r == 1 { "" } else { "s" },
+                self.features.describe_bin(b)
+            )
         }
     }
 
@@ -337,10 +375,9 @@ impl Model {
                 let right = &self.tree.nodes[s.right as usize];
                 let left = &self.tree.nodes[s.left as usize];
                 Some(format!(
-                    "node {i} (n={}): fraction of pixels in bin {}: {} > {:.4} -> {} (p={:.4}) else {} (p={:.4})",
+                    "node {i} (n={}): fraction of pixels in {} > {:.4} -> {} (p={:.4}) else {} (p={:.4})",
                     node.n_train,
-                    s.feature,
-                    self.features.describe_bin(s.feature as usize),
+                    self.describe_feature(s.feature as usize),
                     s.threshold,
                     s.right,
                     right.p,
@@ -476,6 +513,7 @@ impl SessionPrediction {
 pub struct TrainConfig {
     pub features: FeatureKind,
     pub tile_px: u32,
+    pub context_tiles: u32,
     pub train_stride_px: u32,
     pub seed: u64,
     pub object: Option<String>,
@@ -489,6 +527,7 @@ impl Default for TrainConfig {
         Self {
             features: FeatureKind::Rgb332,
             tile_px: 8,
+            context_tiles: 0,
             train_stride_px: 4,
             seed: 0,
             object: None,
@@ -502,6 +541,7 @@ impl TrainConfig {
         ExampleParams {
             features: self.features,
             tile_px: self.tile_px,
+            context_tiles: self.context_tiles,
             train_stride_px: self.train_stride_px,
             seed: self.seed,
         }
@@ -583,6 +623,7 @@ pub fn fit_model(
         version: MODEL_VERSION,
         features: cfg.features,
         tile_px: cfg.tile_px,
+        context_tiles: cfg.context_tiles,
         base_rate: metadata.fit.base_rate,
         tree,
         metadata,

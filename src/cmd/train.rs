@@ -44,6 +44,10 @@ pub struct Args {
     /// Stop growth after this many expansions without a better test log-loss.
     #[arg(long, default_value_t = TreeParams::default().patience)]
     patience: usize,
+    /// Also describe each tile by the mean histogram of the tiles within this many tiles of
+    /// it (0: the tile alone, as in the paper).
+    #[arg(long = "context-tiles", default_value_t = TrainConfig::default().context_tiles)]
+    context_tiles: u32,
     /// Pseudo-examples per leaf added to the pruning third at the leaf's training fraction,
     /// so that a handful of pruning examples cannot condense a well-supported split (0: the
     /// bare pruning third, as in the paper).
@@ -67,6 +71,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let cfg = TrainConfig {
         features: args.features,
         tile_px: args.tile_px,
+        context_tiles: args.context_tiles,
         train_stride_px: args.train_stride_px,
         seed: args.seed,
         object: args.object.clone(),

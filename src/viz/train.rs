@@ -11,7 +11,6 @@ use rerun::RecordingStream;
 use super::fuse::log_frame_and_probs;
 use super::{TIMELINE_FRAME, TIMELINE_LOG_TIME, VizError, log_err, viridis};
 use crate::dataset::LoadedSession;
-use crate::features::TileFeature as _;
 use crate::model::Model;
 use crate::replay::TileProbs;
 
@@ -24,9 +23,8 @@ pub fn node_labels(model: &Model) -> Vec<String> {
         .iter()
         .map(|n| match &n.split {
             Some(s) => format!(
-                "bin {} ({}) > {:.4}?\nn {}",
-                s.feature,
-                model.features.describe_bin(s.feature as usize),
+                "{} > {:.4}?\nn {}",
+                model.describe_feature(s.feature as usize),
                 s.threshold,
                 n.n_train
             ),
