@@ -13,7 +13,6 @@ use objloc::features::{FeatureKind, TileFeature};
 use objloc::model::{TrainConfig, examples, fit_model};
 use objloc::msgs::RegionOfInterest;
 use objloc::session::{Rgb8, Topics};
-use objloc::tree::TreeParams;
 
 const RUNS: usize = 15;
 
@@ -104,11 +103,7 @@ fn main() {
     for features in [FeatureKind::Hsv, FeatureKind::Rgb332] {
         let cfg = TrainConfig {
             features,
-            tile_px: 8,
-            train_stride_px: 4,
-            seed: 0,
-            object: None,
-            tree: TreeParams::default(),
+            ..TrainConfig::default()
         };
         let (mut t_ex, mut t_fit, mut t_pred) = (Vec::new(), Vec::new(), Vec::new());
         let mut summary = String::new();
