@@ -238,12 +238,7 @@ fn train_then_predict_finds_the_box() {
         pred.as_os_str(),
         os("--heatmaps"),
     ]));
-    let auc: f64 = text
-        .split("tile ROC AUC ")
-        .nth(1)
-        .and_then(|s| s.split(',').next())
-        .and_then(|s| s.parse().ok())
-        .unwrap_or_else(|| panic!("no AUC in {text}"));
+    let auc = printed_auc(&text);
     assert!(auc > 0.97, "{text}");
     // 3 labelled frames x 960 tiles. Positives: box 1 (x 100..140, y 40..100) holds cols
     // 13..=16 and rows 5..=11 whole: 4 x 7 = 28; box 2 (x 10..46, y 150..198) holds cols
@@ -386,21 +381,25 @@ fn bad_inputs_fail_with_one_line_and_no_output() {
     }
 }
 
+/// The tile ROC AUC in what `objloc predict` printed.
+fn printed_auc(text: &str) -> f64 {
+    text.split("tile ROC AUC ")
+        .nth(1)
+        .and_then(|s| s.split(',').next())
+        .and_then(|s| s.parse().ok())
+        .unwrap_or_else(|| panic!("no AUC in {text}"))
+}
+
 /// The tile ROC AUC `objloc predict` prints for `tour` with `model`.
 fn tour_auc(tour: &Path, model: &Path, out: &Path) -> f64 {
-    let text = ok(&objloc(&[
+    printed_auc(&ok(&objloc(&[
         os("predict"),
         tour.as_os_str(),
         os("--model"),
         model.as_os_str(),
         os("--out"),
         out.as_os_str(),
-    ]));
-    text.split("tile ROC AUC ")
-        .nth(1)
-        .and_then(|s| s.split(',').next())
-        .and_then(|s| s.parse().ok())
-        .unwrap_or_else(|| panic!("no AUC in {text}"))
+    ])))
 }
 
 #[test]
