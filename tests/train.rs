@@ -301,6 +301,30 @@ fn bad_inputs_fail_with_one_line_and_no_output() {
     );
     assert!(!model.exists());
 
+    // Tree and feature options out of range, refused before any work.
+    for (flag, value, expect) in [
+        ("--context-tiles", "9", "--context-tiles 9 is over 4"),
+        ("--base-mix", "1.5", "--base-mix 1.5 must be in [0, 1)"),
+        (
+            "--m-estimate",
+            "0",
+            "--m-estimate 0 must be a positive number",
+        ),
+    ] {
+        let out = objloc(&[
+            os("train"),
+            unread_session(dir.path()).as_os_str(),
+            os("-o"),
+            model.as_os_str(),
+            os(flag),
+            os(value),
+        ]);
+        assert_eq!(out.status.code(), Some(1));
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(err.trim_end() == format!("error: {expect}"), "{err}");
+        assert!(!model.exists());
+    }
+
     // A session whose frames carry no label at all.
     let unlabelled = dir.path().join("unlabelled.mcap");
     write_session(&unlabelled, 3, &[Kind::Unlabelled, Kind::Unlabelled]);
@@ -432,4 +456,9 @@ fn neighbourhood_histograms_lift_the_chair_tour_auc_over_the_rectangle_labels() 
     }
     // Measured 0.900 and 0.967.
     assert!(aucs[0] < 0.92 && aucs[1] > 0.95, "{aucs:?}");
+}
+
+/// A session path for option checks that fail before any session is read.
+fn unread_session(dir: &Path) -> PathBuf {
+    dir.join("never-read.mcap")
 }

@@ -89,6 +89,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         cfg.tree.m_estimate
     );
     anyhow::ensure!(
+        cfg.context_tiles <= objloc::model::MAX_CONTEXT_TILES,
+        "--context-tiles {} is over {}",
+        cfg.context_tiles,
+        objloc::model::MAX_CONTEXT_TILES
+    );
+    anyhow::ensure!(
         cfg.tree.prune_pseudo.is_finite() && cfg.tree.prune_pseudo >= 0.0,
         "--prune-pseudo {} must be a number >= 0",
         cfg.tree.prune_pseudo
