@@ -17,7 +17,7 @@ use std::path::{Path, PathBuf};
 use rayon::prelude::*;
 use thiserror::Error;
 
-use crate::features::{FeatureKind, TileFeature, tile_histograms, with_context};
+use crate::features::{FeatureKind, feature_count, tile_histograms, with_context};
 use crate::msgs::RegionOfInterest;
 use crate::session::{At, Frame, Rgb8, SessionError, SessionMsg, SessionReader, Topics};
 use crate::tree::{Examples, Third};
@@ -270,7 +270,7 @@ pub fn build_examples(
                 .collect()
         })
         .collect();
-    let bins = feature.bins() * if params.context_tiles > 0 { 2 } else { 1 };
+    let bins = feature_count(feature, params.context_tiles);
     let denom = (t * t) as u16;
     let mut ex = Examples::new(bins, denom);
     // Aligned grid first (offset index 0 is (0, 0)); its thirds are assigned together.

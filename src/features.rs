@@ -218,6 +218,12 @@ pub fn whole_tiles(len_px: u32, offset_px: u32, tile_px: u32) -> usize {
     ((len_px - offset_px) / tile_px) as usize
 }
 
+/// Features a tree reads for `kind` with a neighbourhood of `context_tiles` (see
+/// [`with_context`]): the tile's bins, doubled when there is a neighbourhood.
+pub fn feature_count(kind: FeatureKind, context_tiles: u32) -> usize {
+    kind.bins() * if context_tiles > 0 { 2 } else { 1 }
+}
+
 /// Appends to every tile's histogram the mean histogram of the tiles within `radius` tiles
 /// of it (a (2 radius + 1)^2 window of the same grid, clipped at the image edge), rounded to
 /// whole counts of one tile, so both halves share the tile's denominator: `bins` doubles and

@@ -265,7 +265,7 @@ impl Model {
 
     /// Features the tree reads: the tile's histogram, then the neighbourhood's if any.
     pub fn n_features(&self) -> usize {
-        self.features.bins() * if self.context_tiles > 0 { 2 } else { 1 }
+        crate::features::feature_count(self.features, self.context_tiles)
     }
 
     /// A tree feature in words, e.g. "bin 96 (red 96-127, ...)" or, for the neighbourhood

@@ -29,20 +29,28 @@ fn rerun(args: &[&std::ffi::OsStr]) -> Output {
     run_checked(Command::new(rerun_cli()).args(args)).unwrap_or_else(|e| panic!("{e}"))
 }
 
-fn trained_model(dir: &Path) -> PathBuf {
-    let model = dir.join("chair-model.json");
+/// Runs the binary from the repository root and checks it succeeded.
+fn run_objloc(args: &[&std::ffi::OsStr]) {
     let out = Command::new(env!("CARGO_BIN_EXE_objloc"))
-        .arg("train")
-        .arg(repo_dir().join("recordings/chair-train.mcap"))
-        .arg("-o")
-        .arg(&model)
+        .current_dir(repo_dir())
+        .args(args)
         .output()
         .expect("objloc runs");
     assert!(
         out.status.success(),
-        "train failed: {}",
+        "objloc {args:?} failed: {}",
         String::from_utf8_lossy(&out.stderr)
     );
+}
+
+fn trained_model(dir: &Path) -> PathBuf {
+    let model = dir.join("chair-model.json");
+    run_objloc(&[
+        "train".as_ref(),
+        repo_dir().join("recordings/chair-train.mcap").as_os_str(),
+        "-o".as_ref(),
+        model.as_os_str(),
+    ]);
     model
 }
 
@@ -394,22 +402,18 @@ fn refined_replay_streams_the_refined_trajectory_beside_the_robot_in_world_coord
     let dir = tempfile::tempdir().unwrap();
     let model = trained_model(dir.path());
     let rrd = dir.path().join("refined.rrd");
-    let out = Command::new(env!("CARGO_BIN_EXE_objloc"))
-        .current_dir(repo_dir())
-        .args(["fuse", "recordings/chair-tour-drift.mcap", "--refine-poses"])
-        .arg("--model")
-        .arg(&model)
-        .arg("--report")
-        .arg(dir.path().join("r.json"))
-        .arg("--save")
-        .arg(&rrd)
-        .output()
-        .expect("objloc runs");
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let report = dir.path().join("r.json");
+    run_objloc(&[
+        "fuse".as_ref(),
+        "recordings/chair-tour-drift.mcap".as_ref(),
+        "--refine-poses".as_ref(),
+        "--model".as_ref(),
+        model.as_os_str(),
+        "--report".as_ref(),
+        report.as_os_str(),
+        "--save".as_ref(),
+        rrd.as_os_str(),
+    ]);
     let v = rrd_entities(&rrd);
     for (entity, want) in [
         ("/world/robot/refined", "LineStrips3D:strips"),
@@ -454,7 +458,7 @@ fn refined_replay_streams_the_refined_trajectory_beside_the_robot_in_world_coord
     let points = last_points.as_array().unwrap();
     assert_eq!(points.len(), 8, "{last_points}");
     let report: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(dir.path().join("r.json")).unwrap()).unwrap();
+        serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap();
     let first = &report["per_frame"][0]["odom_position_m"];
     for a in 0..2 {
         let got = points[0][a].as_f64().unwrap();

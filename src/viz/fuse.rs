@@ -48,13 +48,11 @@ const ODOM_RGB: [u8; 3] = [220, 220, 220];
 /// The refined trajectory: green, beside odometry's grey and the truth's orange.
 const REFINED_RGB: [u8; 3] = [60, 200, 90];
 
-/// Trajectory entities, drawn in `world` coordinates under the moving `world/robot`.
-const TRACKS: [&str; 4] = [
-    "world/robot/odometry",
-    "world/robot/ground_truth",
-    "world/robot/refined",
-    "world/robot/refined/frames",
-];
+/// Trajectory entities, drawn in `world` coordinates under the moving `world/robot`; the
+/// refined ones exist only when refining.
+const ODOMETRY_TRACK: &str = "world/robot/odometry";
+const TRUTH_TRACK: &str = "world/robot/ground_truth";
+const REFINED_TRACKS: [&str; 2] = ["world/robot/refined", "world/robot/refined/frames"];
 /// Rerun's implicit frame of the `world` entity.
 const WORLD_FRAME: &str = "tf#/world";
 
@@ -354,6 +352,12 @@ fn scalar(rec: &RecordingStream, path: &str, v: f64) -> Result<(), VizError> {
     rec.log(path, &rerun::Scalars::single(v)).map_err(log_err)
 }
 
+/// Declares `entity`'s data to be in the `world` entity's frame (statically).
+fn in_world_frame(rec: &RecordingStream, entity: &str) -> Result<(), VizError> {
+    rec.log_static(entity, &rerun::CoordinateFrame::new(WORLD_FRAME))
+        .map_err(log_err)
+}
+
 impl FuseViz {
     fn start(&mut self, data: &SessionData, grid: &Grid) -> Result<(), VizError> {
         let rec = &self.rec;
@@ -364,9 +368,9 @@ impl FuseViz {
         // The trajectories live beside the robot they trace (`world/robot/...`) but are in
         // world coordinates: each declares the `world` entity's frame as its own, so the
         // robot's moving transform does not carry them along.
-        for track in TRACKS {
-            rec.log_static(track, &rerun::CoordinateFrame::new(WORLD_FRAME))
-                .map_err(log_err)?;
+        let truth = (!data.ground_truth_poses.is_empty()).then_some(TRUTH_TRACK);
+        for track in std::iter::once(ODOMETRY_TRACK).chain(truth) {
+            in_world_frame(rec, track)?;
         }
         let c = &data.camera;
         rec.log_static(
@@ -415,7 +419,7 @@ impl FuseViz {
             .map_err(log_err)?;
         let stamp = step.frame.stamp_ns;
         rec.log(
-            "world/robot/odometry",
+            ODOMETRY_TRACK,
             &rerun::LineStrips3D::new([track_until(&data.odom, stamp)]).with_colors([
                 rerun::Color::from_rgb(ODOM_RGB[0], ODOM_RGB[1], ODOM_RGB[2]),
             ]),
@@ -423,7 +427,7 @@ impl FuseViz {
         .map_err(log_err)?;
         if !data.ground_truth_poses.is_empty() {
             rec.log(
-                "world/robot/ground_truth",
+                TRUTH_TRACK,
                 &rerun::LineStrips3D::new([track_until(&data.ground_truth_poses, stamp)])
                     .with_colors([rerun::Color::from_rgb(
                         TRUTH_RGB[0],
@@ -440,20 +444,23 @@ impl FuseViz {
             self.first_position = Some(here);
         }
         if let Some(c) = &step.correction {
-            if self.refined_track.is_empty()
-                && let Some(first) = self.first_position.filter(|_| step.index > 0)
-            {
-                self.refined_track.push(first);
+            if self.refined_track.is_empty() {
+                for track in REFINED_TRACKS {
+                    in_world_frame(rec, track)?;
+                }
+                if let Some(first) = self.first_position.filter(|_| step.index > 0) {
+                    self.refined_track.push(first);
+                }
             }
             self.refined_track.push(here);
             let color = rerun::Color::from_rgb(REFINED_RGB[0], REFINED_RGB[1], REFINED_RGB[2]);
             rec.log(
-                "world/robot/refined",
+                REFINED_TRACKS[0],
                 &rerun::LineStrips3D::new([self.refined_track.clone()]).with_colors([color]),
             )
             .map_err(log_err)?;
             rec.log(
-                "world/robot/refined/frames",
+                REFINED_TRACKS[1],
                 &rerun::Points3D::new(self.refined_track.clone())
                     .with_colors([color])
                     .with_radii([0.03]),
