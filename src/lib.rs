@@ -15,6 +15,7 @@ pub mod cdr;
 pub mod dataset;
 pub mod eval;
 pub mod features;
+pub mod floor;
 pub mod geometry;
 pub mod grid;
 pub mod import;

@@ -158,6 +158,12 @@ pub fn find_objects_with_cells(grid: &Grid, params: &ObjectParams) -> Vec<(Objec
     objects
 }
 
+/// A component with at most 1/`FRAGMENT_RATIO` of a larger one's cells is merged into it
+/// when its centroid lies within `FRAGMENT_MARGIN_CELLS` cells of that one's box: two
+/// instances of one object have similar sizes and keep apart however close they stand.
+pub const FRAGMENT_RATIO: usize = 5;
+pub const FRAGMENT_MARGIN_CELLS: f64 = 2.0;
+
 /// Merges every component whose centroid lies inside the bounding box of a larger one into
 /// it. Objects do not nest, so such a component is a fragment cut off by the grow
 /// threshold: on the drift tour with refined poses the chair came out as its seat and back
@@ -165,11 +171,22 @@ pub fn find_objects_with_cells(grid: &Grid, params: &ObjectParams) -> Vec<(Objec
 /// objects side by side or one above the other keep their own boxes and stay apart. Larger
 /// first (ties: lowest first cell), one pass: deterministic.
 fn merge_nested(grid: &Grid, mut objects: Vec<(Object, Vec<usize>)>) -> Vec<(Object, Vec<usize>)> {
+    let voxel = grid.spec.voxel_size_m;
     objects.sort_by(|(a, ma), (b, mb)| b.cells.cmp(&a.cells).then(ma[0].cmp(&mb[0])));
     let mut kept: Vec<(Object, Vec<usize>)> = Vec::with_capacity(objects.len());
     for (o, members) in objects {
+        // A much smaller component may also sit just outside the box (a piece of the
+        // chair's back cut off by the grow threshold, its centroid a cell beyond the box).
         let inside = |k: &Object| {
-            (0..3).all(|a| o.centroid_m[a] >= k.bbox_min_m[a] && o.centroid_m[a] <= k.bbox_max_m[a])
+            let margin = if o.cells * FRAGMENT_RATIO <= k.cells {
+                FRAGMENT_MARGIN_CELLS * voxel
+            } else {
+                0.0
+            };
+            (0..3).all(|a| {
+                o.centroid_m[a] >= k.bbox_min_m[a] - margin
+                    && o.centroid_m[a] <= k.bbox_max_m[a] + margin
+            })
         };
         match kept.iter_mut().find(|(k, _)| inside(k)) {
             Some((k, km)) => {
@@ -294,6 +311,23 @@ mod tests {
             ([4, 4, 1], [8, 8, 5], 20.0, 6),
             ([4, 4, 8], [8, 8, 12], 20.0, 6),
         ]);
+        assert_eq!(find_objects(&g, &ObjectParams::default()).len(), 2);
+    }
+
+    #[test]
+    fn a_small_piece_just_outside_a_box_is_merged_and_a_larger_one_is_not() {
+        // A chair (6 x 6 x 12 = 432 cells) and, one cell beyond its box, a piece of its back
+        // of 1 x 2 x 4 = 8 cells (centroid 1.5 cells out), cut off by the grow threshold.
+        let chair = ([4, 4, 0], [10, 10, 12], 20.0, 6);
+        let g = grid_with(&[chair, ([11, 4, 6], [12, 6, 10], 20.0, 6)]);
+        let objs = find_objects(&g, &ObjectParams::default());
+        assert_eq!(objs.len(), 1);
+        assert_eq!(objs[0].cells, 432 + 8);
+        // The same piece three cells beyond (centroid 3.5 cells out): an object of its own.
+        let g = grid_with(&[chair, ([13, 4, 6], [14, 6, 10], 20.0, 6)]);
+        assert_eq!(find_objects(&g, &ObjectParams::default()).len(), 2);
+        // As close, but 1 x 10 x 12 = 120 cells, over a fifth of the chair: not a fragment.
+        let g = grid_with(&[chair, ([11, 2, 0], [12, 12, 12], 20.0, 6)]);
         assert_eq!(find_objects(&g, &ObjectParams::default()).len(), 2);
     }
 

@@ -43,6 +43,7 @@ use nalgebra::{
     Vector3,
 };
 
+use crate::floor::{FloorMap, FloorPatch};
 use crate::geometry::{Camera, Iso3, yaw_of};
 use crate::grid::TileEvidence;
 use crate::motion::Segment;
@@ -99,6 +100,10 @@ pub struct Correction {
     pub gain: f64,
     /// Landmarks the frame was aligned to (each paired with a detection cluster).
     pub anchors: usize,
+    /// Cells of the frame's floor that lay on floor seen before, at the chosen pose (0 when
+    /// refining without the floor).
+    #[serde(default)]
+    pub floor_cells: usize,
     /// Whether the correction was applied: it must raise the score by [`MIN_GAIN`]; when not,
     /// dx, dy and dyaw are 0 and the frame is treated as not localised.
     #[serde(default)]
@@ -112,6 +117,7 @@ impl Correction {
         dyaw_rad: 0.0,
         gain: 0.0,
         anchors: 0,
+        floor_cells: 0,
         applied: false,
     };
 
@@ -429,12 +435,14 @@ pub fn refine(
     base_from_camera: &Iso3,
     predicted: &Iso3,
     cov: &Matrix3<f64>,
+    floor: Option<(&FloorMap, &FloorPatch)>,
 ) -> Correction {
     let Some(chol) = nalgebra::Cholesky::new(*cov) else {
         return Correction::ZERO;
     };
     let pairs = associate(landmarks, clusters, camera, &(predicted * base_from_camera));
-    if pairs.is_empty() {
+    let floor = floor.filter(|(map, patch)| map.frames() > 0 && !patch.is_empty());
+    if pairs.is_empty() && floor.is_none() {
         return Correction::ZERO;
     }
     let l = chol.l();
@@ -453,8 +461,9 @@ pub fn refine(
     // z: whitened coordinates; the correction is L z and its log prior -|z|^2 / 2.
     let score = |z: &Vector3<f64>| -> f64 {
         let d = l * z;
-        let camera_from_odom = (apply(predicted, d.x, d.y, d.z) * base_from_camera).inverse();
-        let mut log_lik = 0.0;
+        let odom_from_base = apply(predicted, d.x, d.y, d.z);
+        let camera_from_odom = (odom_from_base * base_from_camera).inverse();
+        let mut log_lik = floor.map_or(0.0, |(map, patch)| map.score(patch, &odom_from_base));
         for (&(i, j), info) in pairs.iter().zip(&infos) {
             let r2 = match project(camera, &camera_from_odom, &landmarks[i].position_m) {
                 Some(p) => {
@@ -492,10 +501,13 @@ pub fn refine(
         step /= 2.0;
     }
     let gain = best.0 - base_score;
+    let floor_cells =
+        |odom_from_base: &Iso3| floor.map_or(0, |(map, patch)| map.overlap(patch, odom_from_base));
     if gain < MIN_GAIN {
         return Correction {
             gain,
             anchors: pairs.len(),
+            floor_cells: floor_cells(predicted),
             ..Correction::ZERO
         };
     }
@@ -506,6 +518,7 @@ pub fn refine(
         dyaw_rad: d.z,
         gain,
         anchors: pairs.len(),
+        floor_cells: floor_cells(&apply(predicted, d.x, d.y, d.z)),
         applied: true,
     }
 }
@@ -618,7 +631,7 @@ mod tests {
         let (u, v) = cam
             .project(&((truth * mount).inverse() * Point3::from(target)))
             .unwrap();
-        let c = refine(&[lm], &[[u, v]], &cam, &mount, &predicted, &cov);
+        let c = refine(&[lm], &[[u, v]], &cam, &mount, &predicted, &cov, None);
         (c, truth)
     }
 
@@ -659,6 +672,7 @@ mod tests {
             &Iso3::identity(),
             &Iso3::identity(),
             &cov,
+            None,
         );
         assert_eq!(c, Correction::ZERO);
         let lm = Landmark {
@@ -666,7 +680,15 @@ mod tests {
             covariance_m2: Matrix3::zeros(),
         };
         // A landmark but no detection near it.
-        let c = refine(&[lm], &[], &cam, &Iso3::identity(), &Iso3::identity(), &cov);
+        let c = refine(
+            &[lm],
+            &[],
+            &cam,
+            &Iso3::identity(),
+            &Iso3::identity(),
+            &cov,
+            None,
+        );
         assert_eq!(c, Correction::ZERO);
     }
 }

@@ -76,6 +76,10 @@ pub struct FuseArgs {
     /// to your robot's speed noise). Corrects odometry drift; see docs/fuser.md.
     #[arg(long)]
     pub refine_poses: bool,
+    /// With --refine-poses: localise against the objects only, not also against the floor
+    /// (for a camera that does not see a flat floor around the robot).
+    #[arg(long)]
+    pub no_floor: bool,
     /// Frames that must have seen a cell before it can belong to an object.
     #[arg(long, default_value_t = ObjectParams::default().min_views)]
     pub min_views: u16,
@@ -129,6 +133,7 @@ impl FuseArgs {
             },
             poses: self.poses,
             refine_poses: self.refine_poses,
+            refine_floor: !self.no_floor,
         }
     }
 }
@@ -262,8 +267,13 @@ pub fn print_summary(f: &Fused) {
             max_deg = max_deg.max(a.abs());
         }
         println!(
-            "poses refined: {localised} of {} frames corrected against landmarks; at most {max_m:.3} m and {max_deg:.1} deg from odometry",
-            r.per_frame.len()
+            "poses refined: {localised} of {} frames corrected against {}; at most {max_m:.3} m and {max_deg:.1} deg from odometry",
+            r.per_frame.len(),
+            if r.options.refine_floor {
+                "the objects and the floor"
+            } else {
+                "the objects"
+            }
         );
     }
     for w in &r.warnings {

@@ -474,6 +474,7 @@ impl FuseViz {
                 yaw_of(&(step.odometry.inverse() * step.odom_from_base)).to_degrees(),
             )?;
             scalar(rec, "counts/landmarks", c.anchors as f64)?;
+            scalar(rec, "counts/floor_cells", c.floor_cells as f64)?;
         }
         log_frame_and_probs(rec, "world/robot/camera", &step.image, &step.probs)?;
 

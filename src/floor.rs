@@ -1,0 +1,385 @@
+//! The floor as a second landmark for pose refinement: what a frame shows of the floor,
+//! mapped into `odom` by the poses of the frames fused so far, and how well a candidate pose
+//! lays a new frame's floor onto that map.
+//!
+//! A camera at a fixed mount on a ground robot sees the floor plane (z = 0 in `base_link`)
+//! through the lower part of every image, so each pixel below the horizon has a floor point
+//! fixed in `base_link`, whatever the robot's pose. A frame is reduced once to a *patch*:
+//! mean colour over local floor cells of `cell_m` (large enough to average out fine texture
+//! such as wood grain, which would alias); a candidate planar pose moves the patch into
+//! `odom`, where the *map* (the same cells, accumulated from earlier frames) says what colour
+//! the floor there had. Unlike a single object, the floor around it constrains all three of
+//! (x, y, yaw): the edges of a rug, the shadows of furniture, the slow variation of the
+//! boards.
+//!
+//! Pixels that are not floor (the object, furniture, walls) land on floor points behind
+//! them, differently from every view: their cells disagree across views, so the map keeps a
+//! per-cell variance and every residual is weighted by it, and residuals are truncated.
+//!
+//! Invariants: pure functions of their inputs, no I/O; sums in a fixed order (pixels row by
+//! row, cells in index order), so results do not depend on threads.
+
+use nalgebra::{Point3, Vector3};
+
+use crate::geometry::{Camera, Iso3, yaw_of};
+use crate::session::Rgb8;
+
+/// Settings of the floor term.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FloorParams {
+    /// Side of a floor cell, metres (patch and map).
+    pub cell_m: f64,
+    /// Floor points further than this from the camera are not used (their pixels cover too
+    /// much floor to place them, and the far floor is mostly hidden by furniture).
+    pub max_range_m: f64,
+    /// Pixels a patch cell needs to be used.
+    pub min_pixels: u32,
+    /// Colour noise of a cell mean (per channel, 0..1 scale) beyond what the map's own
+    /// spread says.
+    pub sigma_colour: f64,
+    /// Residuals are truncated at this many sigmas.
+    pub truncate_sigmas: f64,
+    /// Weight of the floor term against the motion prior (cells are not independent: their
+    /// errors share the pose).
+    pub weight: f64,
+}
+
+impl Default for FloorParams {
+    fn default() -> Self {
+        Self {
+            cell_m: 0.07,
+            max_range_m: 4.0,
+            min_pixels: 4,
+            sigma_colour: 0.02,
+            truncate_sigmas: 3.0,
+            weight: 0.2,
+        }
+    }
+}
+
+/// One frame's floor: cells in `base_link` floor coordinates with their mean colour.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct FloorPatch {
+    /// Centroid of the cell's floor points, (x, y) in `base_link`, metres.
+    pub points_m: Vec<[f64; 2]>,
+    /// Mean colour, channels in 0..1.
+    pub colour: Vec<[f32; 3]>,
+    /// Pixels averaged.
+    pub pixels: Vec<u32>,
+}
+
+impl FloorPatch {
+    pub fn len(&self) -> usize {
+        self.points_m.len()
+    }
+    pub fn is_empty(&self) -> bool {
+        self.points_m.is_empty()
+    }
+}
+
+/// Reduces an image to its floor patch (see the module doc), leaving out the pixels for
+/// which `not_floor(u, v)` holds (those the classifier takes for the object).
+pub fn floor_patch(
+    img: &Rgb8,
+    camera: &Camera,
+    base_from_camera: &Iso3,
+    params: &FloorParams,
+    not_floor: impl Fn(u32, u32) -> bool,
+) -> FloorPatch {
+    let cell = params.cell_m;
+    let reach = params.max_range_m;
+    // Local cells cover x in [-reach, reach], y in [-reach, reach] around base_link.
+    let n = (2.0 * reach / cell).ceil() as usize + 1;
+    let mut acc = vec![[0.0f64; 6]; n * n];
+    let origin = base_from_camera.translation.vector;
+    if origin.z <= 0.0 {
+        return FloorPatch::default();
+    }
+    for v in 0..img.height {
+        for u in 0..img.width {
+            let ray =
+                base_from_camera.rotation * camera.ray(f64::from(u) + 0.5, f64::from(v) + 0.5);
+            if ray.z >= -1e-6 || not_floor(u, v) {
+                continue;
+            }
+            let t = -origin.z / ray.z;
+            if t > reach {
+                continue;
+            }
+            let hit = origin + ray * t;
+            let ix = ((hit.x + reach) / cell).floor();
+            let iy = ((hit.y + reach) / cell).floor();
+            if ix < 0.0 || iy < 0.0 || ix >= n as f64 || iy >= n as f64 {
+                continue;
+            }
+            let a = &mut acc[iy as usize * n + ix as usize];
+            let px = img.pixel(u, v);
+            a[0] += hit.x;
+            a[1] += hit.y;
+            a[2] += f64::from(px[0]) / 255.0;
+            a[3] += f64::from(px[1]) / 255.0;
+            a[4] += f64::from(px[2]) / 255.0;
+            a[5] += 1.0;
+        }
+    }
+    let mut patch = FloorPatch::default();
+    for a in &acc {
+        if a[5] >= f64::from(params.min_pixels) {
+            let k = 1.0 / a[5];
+            patch.points_m.push([a[0] * k, a[1] * k]);
+            patch
+                .colour
+                .push([(a[2] * k) as f32, (a[3] * k) as f32, (a[4] * k) as f32]);
+            patch.pixels.push(a[5] as u32);
+        }
+    }
+    patch
+}
+
+/// Moves a `base_link` floor point into `odom` by a planar robot pose.
+#[inline]
+fn to_odom(odom_from_base: &Iso3, p: &[f64; 2]) -> [f64; 2] {
+    let q = odom_from_base * Point3::new(p[0], p[1], 0.0);
+    [q.x, q.y]
+}
+
+/// The floor seen so far, in `odom` cells of `cell_m`: per cell, the weighted sums of colour
+/// and squared colour (for the mean and the spread across views).
+#[derive(Debug, Clone, PartialEq)]
+pub struct FloorMap {
+    params: FloorParams,
+    origin_m: [f64; 2],
+    nx: usize,
+    ny: usize,
+    /// Per cell: weight, then sum of colour (3), then sum of squared colour (3).
+    acc: Vec<[f64; 7]>,
+    frames: usize,
+}
+
+impl FloorMap {
+    /// An empty map covering `min_m`..`max_m` (x, y in `odom`).
+    pub fn new(min_m: [f64; 2], max_m: [f64; 2], params: FloorParams) -> Self {
+        let nx = ((max_m[0] - min_m[0]) / params.cell_m).ceil().max(1.0) as usize;
+        let ny = ((max_m[1] - min_m[1]) / params.cell_m).ceil().max(1.0) as usize;
+        Self {
+            params,
+            origin_m: min_m,
+            nx,
+            ny,
+            acc: vec![[0.0; 7]; nx * ny],
+            frames: 0,
+        }
+    }
+
+    /// Frames added so far.
+    pub fn frames(&self) -> usize {
+        self.frames
+    }
+
+    /// Bilinear corners and weights of a point, in cell-centre coordinates.
+    #[inline]
+    fn corners(&self, p: &[f64; 2]) -> Option<([usize; 4], [f64; 4])> {
+        let fx = (p[0] - self.origin_m[0]) / self.params.cell_m - 0.5;
+        let fy = (p[1] - self.origin_m[1]) / self.params.cell_m - 0.5;
+        if !(fx >= 0.0 && fy >= 0.0) {
+            return None;
+        }
+        let (x0, y0) = (fx.floor() as usize, fy.floor() as usize);
+        if x0 + 1 >= self.nx || y0 + 1 >= self.ny {
+            return None;
+        }
+        let (sx, sy) = (fx - x0 as f64, fy - y0 as f64);
+        let i = y0 * self.nx + x0;
+        Some((
+            [i, i + 1, i + self.nx, i + self.nx + 1],
+            [
+                (1.0 - sx) * (1.0 - sy),
+                sx * (1.0 - sy),
+                (1.0 - sx) * sy,
+                sx * sy,
+            ],
+        ))
+    }
+
+    /// Adds a frame's patch at its (final) robot pose.
+    pub fn add(&mut self, patch: &FloorPatch, odom_from_base: &Iso3) {
+        for ((p, c), &n) in patch.points_m.iter().zip(&patch.colour).zip(&patch.pixels) {
+            let Some((idx, w)) = self.corners(&to_odom(odom_from_base, p)) else {
+                continue;
+            };
+            // Weight by pixels, saturating: a near cell of 200 pixels is not 50 times as
+            // trustworthy as a far one of 4 (both are dominated by texture, not noise).
+            let wn = f64::from(n).min(16.0);
+            for (&i, &wi) in idx.iter().zip(&w) {
+                let ww = wi * wn;
+                let a = &mut self.acc[i];
+                a[0] += ww;
+                for ch in 0..3 {
+                    let v = f64::from(c[ch]);
+                    a[1 + ch] += ww * v;
+                    a[4 + ch] += ww * v * v;
+                }
+            }
+        }
+        self.frames += 1;
+    }
+
+    /// Mean colour and variance (averaged over channels) of a cell, if observed.
+    #[inline]
+    fn cell(&self, i: usize) -> Option<([f64; 3], f64)> {
+        let a = &self.acc[i];
+        if a[0] < 1.0 {
+            return None;
+        }
+        let k = 1.0 / a[0];
+        let m = [a[1] * k, a[2] * k, a[3] * k];
+        let var = (0..3)
+            .map(|ch| (a[4 + ch] * k - m[ch] * m[ch]).max(0.0))
+            .sum::<f64>()
+            / 3.0;
+        Some((m, var))
+    }
+
+    /// Cells of a patch at a robot pose that land on floor the map has seen.
+    pub fn overlap(&self, patch: &FloorPatch, odom_from_base: &Iso3) -> usize {
+        patch
+            .points_m
+            .iter()
+            .filter(|p| {
+                self.corners(&to_odom(odom_from_base, p))
+                    .is_some_and(|(idx, w)| {
+                        idx.iter()
+                            .zip(&w)
+                            .filter(|&(&i, _)| self.acc[i][0] >= 1.0)
+                            .map(|(_, &wi)| wi)
+                            .sum::<f64>()
+                            >= 0.5
+                    })
+            })
+            .count()
+    }
+
+    /// Log-likelihood (up to a constant, times the term's weight) of a patch at a candidate
+    /// robot pose. Cells of the patch that fall where the map has not seen the floor count
+    /// as an average fit, so that moving the patch off the map is neither rewarded nor
+    /// punished.
+    pub fn score(&self, patch: &FloorPatch, odom_from_base: &Iso3) -> f64 {
+        let s0 = self.params.sigma_colour * self.params.sigma_colour;
+        let cap = self.params.truncate_sigmas * self.params.truncate_sigmas;
+        let mut sum = 0.0;
+        // Precompute the pose as a 2D rotation and translation.
+        let (sin, cos) = yaw_of(odom_from_base).sin_cos();
+        let t: Vector3<f64> = odom_from_base.translation.vector;
+        for (p, c) in patch.points_m.iter().zip(&patch.colour) {
+            let q = [cos * p[0] - sin * p[1] + t.x, sin * p[0] + cos * p[1] + t.y];
+            let mut r2 = 1.0;
+            if let Some((idx, w)) = self.corners(&q) {
+                let mut mean = [0.0; 3];
+                let mut var = 0.0;
+                let mut wsum = 0.0;
+                for (&i, &wi) in idx.iter().zip(&w) {
+                    if let Some((m, v)) = self.cell(i) {
+                        for ch in 0..3 {
+                            mean[ch] += wi * m[ch];
+                        }
+                        var += wi * v;
+                        wsum += wi;
+                    }
+                }
+                if wsum >= 0.5 {
+                    let k = 1.0 / wsum;
+                    let d2: f64 = (0..3)
+                        .map(|ch| (f64::from(c[ch]) - mean[ch] * k).powi(2))
+                        .sum::<f64>()
+                        / 3.0;
+                    r2 = (d2 / (s0 + var * k)).min(cap);
+                }
+            }
+            sum -= 0.5 * r2;
+        }
+        sum * self.params.weight
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::{camera_mount, iso_from_xy_yaw};
+
+    #[test]
+    fn a_pixel_lands_where_its_ray_meets_the_floor() {
+        // Camera 1.2 m up, pitched down 15 degrees: the image centre sees the floor at
+        // 1.2 / tan(15 deg) = 4.478 m ahead.
+        let cam = Camera::with_hfov(64, 60, 60f64.to_radians());
+        let mount = camera_mount([0.0, 0.0, 1.2], 15f64.to_radians());
+        let mut img = Rgb8 {
+            width: 64,
+            height: 60,
+            data: vec![0; 64 * 60 * 3],
+        };
+        // One bright pixel just below the centre.
+        let i = (30 * 64 + 31) * 3;
+        img.data[i] = 255;
+        let params = FloorParams {
+            max_range_m: 6.0,
+            min_pixels: 1,
+            cell_m: 0.05,
+            ..FloorParams::default()
+        };
+        let patch = floor_patch(&img, &cam, &mount, &params, |_, _| false);
+        let (k, _) = patch
+            .colour
+            .iter()
+            .enumerate()
+            .find(|(_, c)| c[0] > 0.5)
+            .unwrap();
+        let ray = mount.rotation * cam.ray(31.5, 30.5);
+        let t = -1.2 / ray.z;
+        let want = mount.translation.vector + ray * t;
+        assert!((patch.points_m[k][0] - want.x).abs() < 1e-9);
+        assert!((patch.points_m[k][1] - want.y).abs() < 1e-9);
+        // By hand: the pixel centre is half a pixel below the axis, so its ray is
+        // 15 deg + atan(0.5 / fy) below level and meets the floor 1.2 / tan of that ahead.
+        let depression = 15f64.to_radians() + (0.5 / cam.fy).atan();
+        assert!((want.x - 1.2 / depression.tan()).abs() < 0.02, "{want:?}");
+        assert!(want.y.abs() < 0.05, "{want:?}");
+        // Left out when it is not floor; rows above the horizon never count.
+        let without = floor_patch(&img, &cam, &mount, &params, |u, v| (u, v) == (31, 30));
+        assert!(without.colour.iter().all(|c| c[0] == 0.0));
+        let horizon_row = (cam.cy - cam.fy * 15f64.to_radians().tan()).floor() as usize;
+        let below = (horizon_row + 1..60).count() * 64;
+        let counted: u32 = patch.pixels.iter().sum();
+        assert!(counted as usize <= below, "{counted} > {below}");
+    }
+
+    #[test]
+    fn the_score_peaks_at_the_pose_the_map_was_built_with() {
+        // A synthetic floor: two patches of a checkered rug, seen from one pose; the same
+        // patch scores best at that pose and worse 0.2 m or 5 degrees off it.
+        let mut patch = FloorPatch::default();
+        for ix in 0..30 {
+            for iy in -15..15 {
+                let (x, y) = (1.0 + f64::from(ix) * 0.1, f64::from(iy) * 0.1);
+                let v = if ((x * 2.0).floor() + (y * 2.0).floor()) as i64 % 2 == 0 {
+                    0.8
+                } else {
+                    0.3
+                };
+                patch.points_m.push([x + 0.05, y + 0.05]);
+                patch.colour.push([v, v, v]);
+                patch.pixels.push(16);
+            }
+        }
+        let pose = iso_from_xy_yaw(0.3, -0.2, 0.4);
+        let mut map = FloorMap::new([-6.0, -6.0], [6.0, 6.0], FloorParams::default());
+        map.add(&patch, &pose);
+        let at = map.score(&patch, &pose);
+        for off in [
+            iso_from_xy_yaw(0.5, -0.2, 0.4),
+            iso_from_xy_yaw(0.3, 0.0, 0.4),
+            iso_from_xy_yaw(0.3, -0.2, 0.4 + 5f64.to_radians()),
+        ] {
+            assert!(map.score(&patch, &off) < at - 1.0, "{at}");
+        }
+    }
+}
