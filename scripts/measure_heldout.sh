@@ -1,11 +1,14 @@
 #!/usr/bin/env bash
 # Held-out-style check of the whole pipeline on sessions the defaults were not tuned on:
-# new tours (seeds 21 and 22) of the built-in scenes and of scripts/heldout/two-bottles.json
-# (two identical bottles, on a table at 0.75 m and on a shelf at 1.25 m), at the default speed
+# new tours (seeds 21 and 22) of the built-in scenes and of the scenes in scripts/heldout/
+# (two-bottles: two identical bottles, on a table at 0.75 m and on a shelf at 1.25 m;
+# chair-bare-floor: the chair room with a flat, untextured floor and no rug;
+# chair-tiled-floor: a floor of 0.3 m stripes, the rug moved off-centre), at the default speed
 # noise and at a realistic 5 %/3 %; train on the scene's training session (seed 11), fuse
-# with default options and the room as --bounds, with and without --refine-poses; prints
+# with default options and the room as --bounds, without refinement, with --refine-poses
+# --no-floor (objects only) and with --refine-poses (objects and floor); prints
 # the object errors, missed/spurious counts and the ATE of /odom and of the fused poses.
-# Usage: scripts/measure_heldout.sh   (from the repository root; ~3 minutes)
+# Usage: [SCENES="chair ..."] scripts/measure_heldout.sh   (from the repository root; ~6 minutes)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bin=target/release/objloc
@@ -13,9 +16,9 @@ bin=target/release/objloc
 out=target/measure-heldout
 mkdir -p "$out"
 room=-3.5,-3.5,0,3.5,3.5,2.5
-scene_args() { case "$1" in two-bottles) echo --scene-file scripts/heldout/two-bottles.json;; *) echo --scene "$1";; esac; }
+scene_args() { if [ -f "scripts/heldout/$1.json" ]; then echo --scene-file "scripts/heldout/$1.json"; else echo --scene "$1"; fi; }
 printf '%-12s %-8s %-5s %-8s %-20s %8s %8s\n' scene noise seed refine "errors (m)" "odom ATE" ATE
-for scene in chair bottle two-chairs two-bottles; do
+for scene in ${SCENES:-chair bottle two-chairs two-bottles chair-bare-floor chair-tiled-floor}; do
   train="$out/$scene-train.mcap"
   [ -f "$train" ] || "$bin" record sim $(scene_args $scene) --kind train --seed 11 -o "$train" >/dev/null 2>&1
   "$bin" train "$train" -o "$out/$scene.json" --save "$out/$scene-train.rrd" >/dev/null
@@ -24,8 +27,8 @@ for scene in chair bottle two-chairs two-bottles; do
       tour="$out/$scene-$noise-$seed.mcap"
       flags=""; [ "$noise" = default ] || flags="--speed-noise $noise"
       [ -f "$tour" ] || "$bin" record sim $(scene_args $scene) --kind tour --seed $seed $flags -o "$tour" >/dev/null 2>&1
-      for refine in no yes; do
-        r=""; [ $refine = yes ] && r=--refine-poses
+      for refine in no objects yes; do
+        case $refine in no) r="";; objects) r="--refine-poses --no-floor";; yes) r=--refine-poses;; esac
         rep="${tour%.mcap}-$refine.json"
         "$bin" fuse "$tour" --model "$out/$scene.json" --bounds=$room $r --report "$rep" --save "${rep%.json}.rrd" >/dev/null
         "$bin" eval "$tour" --report "$rep" --json | python3 -c '

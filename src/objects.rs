@@ -159,8 +159,9 @@ pub fn find_objects_with_cells(grid: &Grid, params: &ObjectParams) -> Vec<(Objec
 }
 
 /// A component with at most 1/`FRAGMENT_RATIO` of a larger one's cells is merged into it
-/// when its centroid lies within `FRAGMENT_MARGIN_CELLS` cells of that one's box: two
-/// instances of one object have similar sizes and keep apart however close they stand.
+/// when its centroid lies within `FRAGMENT_MARGIN_CELLS` cells of that one's box, or below
+/// the box within its footprint: two instances of one object have similar sizes and keep
+/// apart however close they stand.
 pub const FRAGMENT_RATIO: usize = 5;
 pub const FRAGMENT_MARGIN_CELLS: f64 = 2.0;
 
@@ -175,18 +176,22 @@ fn merge_nested(grid: &Grid, mut objects: Vec<(Object, Vec<usize>)>) -> Vec<(Obj
     objects.sort_by(|(a, ma), (b, mb)| b.cells.cmp(&a.cells).then(ma[0].cmp(&mb[0])));
     let mut kept: Vec<(Object, Vec<usize>)> = Vec::with_capacity(objects.len());
     for (o, members) in objects {
-        // A much smaller component may also sit just outside the box (a piece of the
-        // chair's back cut off by the grow threshold, its centroid a cell beyond the box).
+        let within = |k: &Object, a: usize, margin: f64| {
+            o.centroid_m[a] >= k.bbox_min_m[a] - margin
+                && o.centroid_m[a] <= k.bbox_max_m[a] + margin
+        };
         let inside = |k: &Object| {
-            let margin = if o.cells * FRAGMENT_RATIO <= k.cells {
-                FRAGMENT_MARGIN_CELLS * voxel
-            } else {
-                0.0
-            };
-            (0..3).all(|a| {
-                o.centroid_m[a] >= k.bbox_min_m[a] - margin
-                    && o.centroid_m[a] <= k.bbox_max_m[a] + margin
-            })
+            if (0..3).all(|a| within(k, a, 0.0)) {
+                return true;
+            }
+            // A much smaller component may also sit just beside the box (a piece of a
+            // chair's back cut off by the grow threshold) or anywhere below it, inside its
+            // footprint (legs cut off under the seat).
+            let margin = FRAGMENT_MARGIN_CELLS * voxel;
+            o.cells * FRAGMENT_RATIO <= k.cells
+                && within(k, 0, margin)
+                && within(k, 1, margin)
+                && o.centroid_m[2] <= k.bbox_max_m[2] + margin
         };
         match kept.iter_mut().find(|(k, _)| inside(k)) {
             Some((k, km)) => {
@@ -328,6 +333,17 @@ mod tests {
         assert_eq!(find_objects(&g, &ObjectParams::default()).len(), 2);
         // As close, but 1 x 10 x 12 = 120 cells, over a fifth of the chair: not a fragment.
         let g = grid_with(&[chair, ([11, 2, 0], [12, 12, 12], 20.0, 6)]);
+        assert_eq!(find_objects(&g, &ObjectParams::default()).len(), 2);
+        // Legs cut off under a seat that floats at k = 8..12: merged however far below;
+        // the same piece above the seat is not.
+        let seat = ([4, 4, 8], [10, 10, 12], 20.0, 6);
+        let leg = ([5, 5, 0], [7, 7, 4], 20.0, 6);
+        let g = grid_with(&[seat, leg]);
+        assert_eq!(find_objects(&g, &ObjectParams::default()).len(), 1);
+        let g = grid_with(&[
+            ([4, 4, 0], [10, 10, 4], 20.0, 6),
+            ([5, 5, 10], [7, 7, 14], 20.0, 6),
+        ]);
         assert_eq!(find_objects(&g, &ObjectParams::default()).len(), 2);
     }
 

@@ -12,7 +12,11 @@
 //! * the likelihood of the frame's detections given the landmarks: each object of the belief
 //!   is a landmark, placed where the rays through its detections in earlier frames meet; a
 //!   candidate pose predicts where each landmark appears in this frame, and the detection
-//!   seen there is Gaussian about that point.
+//!   seen there is Gaussian about that point; times
+//! * (unless `fuse --no-floor`) the likelihood of the frame's view of the floor given the
+//!   floor the earlier frames saw ([`crate::floor`]). One object fixes a frame's bearing
+//!   but not where around the object the robot stands; the floor around it fixes all three
+//!   of (x, y, yaw), from the second frame on.
 //!
 //! Why landmarks triangulated from detections and not the belief's cells: measured on the
 //! shipped tours with true poses, the centroid of an object's detections in each view is the
@@ -25,7 +29,7 @@
 //!
 //! What one object can and cannot fix: its image position fixes the bearing, its height in
 //! the image (weakly) the range; sliding around the object while turning to keep it in view
-//! is unobservable and left to the motion model.
+//! is unobservable from the object alone, which is what the floor term is for.
 //!
 //! The search is a fixed grid in the motion model's whitened coordinates (+-3 sigma in 9 steps
 //! per axis) followed by finer 3x3x3 grids around the best candidate, evaluated in a fixed
@@ -35,8 +39,8 @@
 //! A correction is applied only when it raises the score by [`MIN_GAIN`]: smaller ones fit
 //! the noise of the detections, and applied they compound into drift.
 //!
-//! Invariants: pure functions of their inputs, no I/O; without a landmark seen in the frame,
-//! or without a significant gain, the correction is zero.
+//! Invariants: pure functions of their inputs, no I/O; without a landmark seen in the frame
+//! or floor seen before, or without a significant gain, the correction is zero.
 
 use nalgebra::{
     Matrix2, Matrix2x3, Matrix3, Point3, SymmetricEigen, Translation3, UnitQuaternion, Vector2,
