@@ -153,6 +153,10 @@ pub struct FloorMap {
     ny: usize,
     /// Per cell: weight, then sum of colour (3), then sum of squared colour (3).
     acc: Vec<[f64; 7]>,
+    /// Per cell, kept in step with `acc` so that scoring (hundreds of candidate poses per
+    /// frame) reads them directly: mean colour (3) and variance averaged over channels, or
+    /// NaN where the cell has not been seen.
+    stats: Vec<[f64; 4]>,
     frames: usize,
 }
 
@@ -167,6 +171,7 @@ impl FloorMap {
             nx,
             ny,
             acc: vec![[0.0; 7]; nx * ny],
+            stats: vec![[f64::NAN; 4]; nx * ny],
             frames: 0,
         }
     }
@@ -219,6 +224,10 @@ impl FloorMap {
                     a[1 + ch] += ww * v;
                     a[4 + ch] += ww * v * v;
                 }
+                self.stats[i] = match self.cell(i) {
+                    Some((m, var)) => [m[0], m[1], m[2], var],
+                    None => [f64::NAN; 4],
+                };
             }
         }
         self.frames += 1;
@@ -274,25 +283,24 @@ impl FloorMap {
             let q = [cos * p[0] - sin * p[1] + t.x, sin * p[0] + cos * p[1] + t.y];
             let mut r2 = 1.0;
             if let Some((idx, w)) = self.corners(&q) {
-                let mut mean = [0.0; 3];
-                let mut var = 0.0;
-                let mut wsum = 0.0;
+                let mut acc = [0.0f64; 5];
                 for (&i, &wi) in idx.iter().zip(&w) {
-                    if let Some((m, v)) = self.cell(i) {
-                        for ch in 0..3 {
-                            mean[ch] += wi * m[ch];
+                    let st = &self.stats[i];
+                    // NaN: not seen (a comparison with NaN is false).
+                    if st[3] >= 0.0 {
+                        for (a, &v) in acc.iter_mut().zip(st) {
+                            *a += wi * v;
                         }
-                        var += wi * v;
-                        wsum += wi;
+                        acc[4] += wi;
                     }
                 }
-                if wsum >= 0.5 {
-                    let k = 1.0 / wsum;
+                if acc[4] >= 0.5 {
+                    let k = 1.0 / acc[4];
                     let d2: f64 = (0..3)
-                        .map(|ch| (f64::from(c[ch]) - mean[ch] * k).powi(2))
+                        .map(|ch| (f64::from(c[ch]) - acc[ch] * k).powi(2))
                         .sum::<f64>()
                         / 3.0;
-                    r2 = (d2 / (s0 + var * k)).min(cap);
+                    r2 = (d2 / (s0 + acc[3] * k)).min(cap);
                 }
             }
             sum -= 0.5 * r2;
