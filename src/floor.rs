@@ -24,7 +24,10 @@ use nalgebra::{Point3, Vector3};
 use crate::geometry::{Camera, Iso3, yaw_of};
 use crate::session::Rgb8;
 
-/// Settings of the floor term.
+/// Settings of the floor term. The defaults were chosen by a sweep over 20 sessions (shipped
+/// and held-out-style tours, docs/fuser.md "The floor"): cells of 0.15-0.20 m lose the rug's
+/// edges, 0.05 m gains little for twice the cost; a weight of 0.03-0.05 leaves drift in,
+/// 0.2-0.4 lowers the trajectory error without changing the object errors.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FloorParams {
     /// Side of a floor cell, metres (patch and map).
