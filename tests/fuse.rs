@@ -313,6 +313,11 @@ fn fuse_refuses_bad_input_with_one_line_errors_and_no_outputs() {
         err.contains("--bounds") && err.contains("expected 6"),
         "{err}"
     );
+    // --no-floor only means something when refining.
+    let out = fuse(&["--model", p(&model), "--no-floor"]);
+    assert_eq!(out.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("--refine-poses"), "{err}");
 
     let not_mcap = dir.path().join("notes.mcap");
     std::fs::write(&not_mcap, b"hello").unwrap();

@@ -78,7 +78,7 @@ pub struct FuseArgs {
     pub refine_poses: bool,
     /// With --refine-poses: localise against the objects only, not also against the floor
     /// (for a camera that does not see a flat floor around the robot).
-    #[arg(long)]
+    #[arg(long, requires = "refine_poses")]
     pub no_floor: bool,
     /// Frames that must have seen a cell before it can belong to an object.
     #[arg(long, default_value_t = ObjectParams::default().min_views)]
