@@ -252,22 +252,31 @@ impl FloorMap {
         Some((m, var))
     }
 
+    /// The map at a point of `odom`, bilinear over the seen cells: weighted sums of mean
+    /// colour (3) and variance, and the seen cells' total weight, if that is at least half.
+    #[inline]
+    fn lookup(&self, q: &[f64; 2]) -> Option<[f64; 5]> {
+        let (idx, w) = self.corners(q)?;
+        let mut acc = [0.0f64; 5];
+        for (&i, &wi) in idx.iter().zip(&w) {
+            let st = &self.stats[i];
+            // NaN: not seen (a comparison with NaN is false).
+            if st[3] >= 0.0 {
+                for (a, &v) in acc.iter_mut().zip(st) {
+                    *a += wi * v;
+                }
+                acc[4] += wi;
+            }
+        }
+        (acc[4] >= 0.5).then_some(acc)
+    }
+
     /// Cells of a patch at a robot pose that land on floor the map has seen.
     pub fn overlap(&self, patch: &FloorPatch, odom_from_base: &Iso3) -> usize {
         patch
             .points_m
             .iter()
-            .filter(|p| {
-                self.corners(&to_odom(odom_from_base, p))
-                    .is_some_and(|(idx, w)| {
-                        idx.iter()
-                            .zip(&w)
-                            .filter(|&(&i, _)| self.acc[i][0] >= 1.0)
-                            .map(|(_, &wi)| wi)
-                            .sum::<f64>()
-                            >= 0.5
-                    })
-            })
+            .filter(|p| self.lookup(&to_odom(odom_from_base, p)).is_some())
             .count()
     }
 
@@ -285,26 +294,13 @@ impl FloorMap {
         for (p, c) in patch.points_m.iter().zip(&patch.colour) {
             let q = [cos * p[0] - sin * p[1] + t.x, sin * p[0] + cos * p[1] + t.y];
             let mut r2 = 1.0;
-            if let Some((idx, w)) = self.corners(&q) {
-                let mut acc = [0.0f64; 5];
-                for (&i, &wi) in idx.iter().zip(&w) {
-                    let st = &self.stats[i];
-                    // NaN: not seen (a comparison with NaN is false).
-                    if st[3] >= 0.0 {
-                        for (a, &v) in acc.iter_mut().zip(st) {
-                            *a += wi * v;
-                        }
-                        acc[4] += wi;
-                    }
-                }
-                if acc[4] >= 0.5 {
-                    let k = 1.0 / acc[4];
-                    let d2: f64 = (0..3)
-                        .map(|ch| (f64::from(c[ch]) - acc[ch] * k).powi(2))
-                        .sum::<f64>()
-                        / 3.0;
-                    r2 = (d2 / (s0 + acc[3] * k)).min(cap);
-                }
+            if let Some(acc) = self.lookup(&q) {
+                let k = 1.0 / acc[4];
+                let d2: f64 = (0..3)
+                    .map(|ch| (f64::from(c[ch]) - acc[ch] * k).powi(2))
+                    .sum::<f64>()
+                    / 3.0;
+                r2 = (d2 / (s0 + acc[3] * k)).min(cap);
             }
             sum -= 0.5 * r2;
         }
