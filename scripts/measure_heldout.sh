@@ -5,8 +5,8 @@
 # chair-bare-floor: the chair room with a flat, untextured floor and no rug;
 # chair-tiled-floor: a floor of 0.3 m stripes, the rug moved off-centre), at the default speed
 # noise and at a realistic 5 %/3 %; train on the scene's training session (seed 11), fuse
-# with default options and the room as --bounds, without refinement, with --refine-poses
-# --no-floor (objects only) and with --refine-poses (objects and floor); prints
+# with the room as --bounds and otherwise default options (poses refined against objects and
+# floor), with --no-floor (objects only) and with --no-refine-poses (the paper); prints
 # the object errors, missed/spurious counts and the ATE of /odom and of the fused poses.
 # Usage: [SCENES="chair ..."] scripts/measure_heldout.sh   (from the repository root; ~6 minutes)
 set -euo pipefail
@@ -27,8 +27,8 @@ for scene in ${SCENES:-chair bottle two-chairs two-bottles chair-bare-floor chai
       tour="$out/$scene-$noise-$seed.mcap"
       flags=""; [ "$noise" = default ] || flags="--speed-noise $noise"
       [ -f "$tour" ] || "$bin" record sim $(scene_args $scene) --kind tour --seed $seed $flags -o "$tour" >/dev/null 2>&1
-      for refine in no objects yes; do
-        case $refine in no) r="";; objects) r="--refine-poses --no-floor";; yes) r=--refine-poses;; esac
+      for refine in no objects default; do
+        case $refine in no) r="--no-refine-poses";; objects) r="--no-floor";; default) r="";; esac
         rep="${tour%.mcap}-$refine.json"
         "$bin" fuse "$tour" --model "$out/$scene.json" --bounds=$room $r --report "$rep" --save "${rep%.json}.rrd" >/dev/null
         "$bin" eval "$tour" --report "$rep" --json | python3 -c '

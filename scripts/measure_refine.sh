@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # Measures pose refinement on every shipped tour and on turn-biased variants of the chair
-# tour: fuses each with odometry, with --refine-poses --no-floor (objects only), with
-# --refine-poses (objects and floor), and (simulated truth) with ground-truth poses refined
-# (what refinement does to exact poses); prints one row per run:
+# tour: fuses each with --no-refine-poses (odometry), with --no-floor (objects only), with the
+# default refinement (objects and floor), and (simulated truth) with ground-truth poses
+# refined (what refinement does to exact poses); prints one row per run:
 # object errors, spurious objects, and the ATE of /odom and of the poses fused with.
 # Usage: scripts/measure_refine.sh [SIGMA]   (from the repository root; SIGMA sets both
 # --sigma-v and --sigma-w, default 0.01)
@@ -27,9 +27,9 @@ printf '%-22s %-10s %-14s %8s %-14s %9s %9s %8s\n' session poses refine spurious
 for s in recordings/chair-tour recordings/two-chairs-tour recordings/bottle-tour recordings/chair-tour-drift \
          "$out/bias0" "$out/bias0.02" "$out/bias0.03" "$out/bias-0.03" "$out/long200"; do
   model="$out/chair.json"; [ "$(basename "$s")" = bottle-tour ] && model="$out/bottle.json"
-  for run in "odometry no" "odometry objects" "odometry yes" "ground-truth yes"; do
+  for run in "odometry no" "odometry objects" "odometry default" "ground-truth default"; do
     set -- $run
-    case $2 in no) flag="";; objects) flag="--refine-poses --no-floor";; yes) flag=--refine-poses;; esac
+    case $2 in no) flag="--no-refine-poses";; objects) flag="--no-floor";; default) flag="";; esac
     rep="$out/$(basename "$s")-$1-$2.json"
     "$bin" fuse "$s.mcap" --model "$model" --poses "$1" $flag --sigma-v "$sigma" --sigma-w "$sigma" \
       --report "$rep" --save "${rep%.json}.rrd" >/dev/null

@@ -127,7 +127,12 @@ impl Correction {
 
     /// Applies the correction to a robot pose in `odom`: the heading turns about the robot's
     /// own vertical axis, the position moves in `odom`.
+    /// A correction not applied returns the pose itself (not a product with the identity,
+    /// which can flip the sign of a zero).
     pub fn apply(&self, odom_from_base: &Iso3) -> Iso3 {
+        if !self.applied {
+            return *odom_from_base;
+        }
         apply(odom_from_base, self.dx_m, self.dy_m, self.dyaw_rad)
     }
 }

@@ -128,7 +128,7 @@ fn fuse_and_eval(session: &Path, model: &Path, mode: Mode, threads: &str) -> (Va
         p(&report),
     ];
     match mode {
-        Mode::Odometry => {}
+        Mode::Odometry => args.push("--no-refine-poses"),
         Mode::Refined => args.push("--refine-poses"),
         Mode::RefinedNoFloor => args.extend(["--refine-poses", "--no-floor"]),
     }

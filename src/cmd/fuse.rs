@@ -71,14 +71,18 @@ pub struct FuseArgs {
     /// sessions: separates odometry error from classifier error).
     #[arg(long, value_enum, default_value_t = PoseSource::Odometry)]
     pub poses: PoseSource,
-    /// Before each frame is fused, localise it against the objects seen so far, searching
-    /// around the odometry prediction under the motion model (--sigma-v/--sigma-w: set them
-    /// to your robot's speed noise). Corrects odometry drift; see docs/fuser.md.
-    #[arg(long)]
+    /// Localise each frame against the objects and the floor seen so far before fusing it,
+    /// searching around the odometry prediction under the motion model (--sigma-v/--sigma-w:
+    /// set them to your robot's speed noise). The default; accepted for scripts that ask for
+    /// it. See docs/fuser.md.
+    #[arg(long, overrides_with = "no_refine_poses")]
     pub refine_poses: bool,
-    /// With --refine-poses: localise against the objects only, not also against the floor
-    /// (for a camera that does not see a flat floor around the robot).
-    #[arg(long, requires = "refine_poses")]
+    /// Fuse every frame at its /odom pose, as the paper does (no pose refinement).
+    #[arg(long, overrides_with = "refine_poses")]
+    pub no_refine_poses: bool,
+    /// Localise against the objects only, not also against the floor (for a camera that
+    /// does not see a flat floor around the robot).
+    #[arg(long, conflicts_with = "no_refine_poses")]
     pub no_floor: bool,
     /// Frames that must have seen a cell before it can belong to an object.
     #[arg(long, default_value_t = ObjectParams::default().min_views)]
@@ -132,9 +136,10 @@ impl FuseArgs {
                 ..ObjectParams::default()
             },
             poses: self.poses,
-            refine_poses: self.refine_poses,
+            refine_poses: !self.no_refine_poses,
             refine_floor: !self.no_floor,
         }
+        .normalised()
     }
 }
 
@@ -159,6 +164,11 @@ pub fn fuse(
     let session_sha256 = file_sha256(session).with_context(|| session.display().to_string())?;
     let model_sha256 = file_sha256(model_path).with_context(|| model_path.display().to_string())?;
     let t_load = t0.elapsed();
+    if args.refine_poses && args.sigma_v <= 0.0 && args.sigma_w <= 0.0 {
+        anyhow::bail!(
+            "--refine-poses searches under the motion model, and --sigma-v 0 --sigma-w 0 declare odometry exact: give a speed noise above 0, or drop --refine-poses"
+        );
+    }
     let options = args.options();
     let t1 = Instant::now();
     let id = viz::recording_id(

@@ -49,7 +49,7 @@ struct SimArgs {
     #[arg(long, value_name = "TRANS,ROT", default_value = "0.01,0.006")]
     speed_noise: String,
     /// Systematic turn error: the robot turns (1 + F) times what odometry reports, e.g. 0.03
-    /// (a known heading bias, to test `fuse --refine-poses`).
+    /// (a known heading bias, to test pose refinement in `fuse`).
     #[arg(
         long,
         value_name = "F",
