@@ -549,6 +549,26 @@ mod tests {
     /// Rotate 2 s with sigma_w = 0.01 (heading sd 0.02 rad), then drive 1 m along +x in 4 s
     /// with sigma_v = 0.02 (along-track sd 0.08 m): the sideways variance is d^2 * var(yaw)
     /// = 0.0004, the y-yaw covariance d * var(yaw) = 0.0004, plus the floors.
+    /// A correction that was not applied leaves the pose bit for bit (a default replay that
+    /// corrects nothing must fuse exactly at the /odom poses); an applied one moves it.
+    #[test]
+    fn unapplied_correction_is_the_identity_bit_for_bit() {
+        let pose = iso_from_xy_yaw(-0.0, 1.3, -2.9) * camera_mount([0.2, 0.0, 1.2], 0.26);
+        let same = Correction::ZERO.apply(&pose);
+        assert_eq!(same, pose);
+        let (t, u) = (pose.translation.vector, same.translation.vector);
+        assert!((0..3).all(|i| t[i].to_bits() == u[i].to_bits()));
+        let moved = Correction {
+            dx_m: 0.1,
+            dyaw_rad: 0.02,
+            applied: true,
+            ..Correction::ZERO
+        }
+        .apply(&pose);
+        assert!((moved.translation.x - pose.translation.x - 0.1).abs() < 1e-12);
+        assert!((yaw_of(&moved) - yaw_of(&pose) - 0.02).abs() < 1e-9);
+    }
+
     #[test]
     fn covariance_of_a_turn_then_a_drive() {
         let segs = [
