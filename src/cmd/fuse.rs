@@ -158,17 +158,18 @@ pub fn fuse(
     rerun: &VizArgs,
     default_rrd: &Path,
 ) -> anyhow::Result<Fused> {
+    // Checked before any file is read: a contradiction in the flags, not in the inputs.
+    if args.refine_poses && args.sigma_v <= 0.0 && args.sigma_w <= 0.0 {
+        anyhow::bail!(
+            "--refine-poses searches under the motion model, and --sigma-v 0 --sigma-w 0 declare odometry exact: give a speed noise above 0, or drop --refine-poses"
+        );
+    }
     let t0 = Instant::now();
     let model = Model::load(model_path).context("loading the model")?;
     let reader = SessionReader::open(session, topics.topics()?).context("reading the session")?;
     let session_sha256 = file_sha256(session).with_context(|| session.display().to_string())?;
     let model_sha256 = file_sha256(model_path).with_context(|| model_path.display().to_string())?;
     let t_load = t0.elapsed();
-    if args.refine_poses && args.sigma_v <= 0.0 && args.sigma_w <= 0.0 {
-        anyhow::bail!(
-            "--refine-poses searches under the motion model, and --sigma-v 0 --sigma-w 0 declare odometry exact: give a speed noise above 0, or drop --refine-poses"
-        );
-    }
     let options = args.options();
     let t1 = Instant::now();
     let id = viz::recording_id(
