@@ -127,6 +127,7 @@ impl Correction {
 
     /// Applies the correction to a robot pose in `odom`: the heading turns about the robot's
     /// own vertical axis, the position moves in `odom`.
+    ///
     /// A correction not applied returns the pose itself (not a product with the identity,
     /// which can flip the sign of a zero).
     pub fn apply(&self, odom_from_base: &Iso3) -> Iso3 {
@@ -546,9 +547,6 @@ mod tests {
         }
     }
 
-    /// Rotate 2 s with sigma_w = 0.01 (heading sd 0.02 rad), then drive 1 m along +x in 4 s
-    /// with sigma_v = 0.02 (along-track sd 0.08 m): the sideways variance is d^2 * var(yaw)
-    /// = 0.0004, the y-yaw covariance d * var(yaw) = 0.0004, plus the floors.
     /// A correction that was not applied leaves the pose bit for bit (a default replay that
     /// corrects nothing must fuse exactly at the /odom poses); an applied one moves it.
     #[test]
@@ -569,6 +567,9 @@ mod tests {
         assert!((yaw_of(&moved) - yaw_of(&pose) - 0.02).abs() < 1e-9);
     }
 
+    /// Rotate 2 s with sigma_w = 0.01 (heading sd 0.02 rad), then drive 1 m along +x in 4 s
+    /// with sigma_v = 0.02 (along-track sd 0.08 m): the sideways variance is d^2 * var(yaw)
+    /// = 0.0004, the y-yaw covariance d * var(yaw) = 0.0004, plus the floors.
     #[test]
     fn covariance_of_a_turn_then_a_drive() {
         let segs = [
