@@ -717,8 +717,8 @@ pub fn replay(
             Vec::new()
         };
         let correction = match index.checked_sub(1) {
-            Some(prev) if options.refine_poses => {
-                let c = localise(
+            Some(_) if options.refine_poses => {
+                let (c, predicted) = localise(
                     &fuser.grid,
                     &data,
                     options,
@@ -729,7 +729,7 @@ pub fn replay(
                     index,
                     floor_map.as_ref(),
                 );
-                poses.push(c.apply(&predicted_pose(&prepared, &poses, index, prev)));
+                poses.push(c.apply(&predicted));
                 Some(c)
             }
             _ => {
@@ -848,16 +848,6 @@ fn decode_frame(
     Ok(image)
 }
 
-/// Where frame `index` is predicted to be: the previous frame's pose (refined) moved by the
-/// odometry increment between the two frames.
-fn predicted_pose(prepared: &[Prepared], poses: &[Iso3], index: usize, prev: usize) -> Iso3 {
-    if poses[prev] == prepared[prev].odometry {
-        // Nothing corrected so far: the odometry itself, not a product that rounds.
-        return prepared[index].odometry;
-    }
-    carried_correction(prepared, poses, prev) * prepared[index].odometry
-}
-
 /// Fraction of the accumulated correction (refined pose against odometry) a frame carries
 /// to the next. Below 1 so that what one object cannot observe (sliding around it) does
 /// not random-walk: measured on a 200-frame chair tour, carrying all of it took the refined
@@ -867,26 +857,32 @@ fn predicted_pose(prepared: &[Prepared], poses: &[Iso3], index: usize, prev: usi
 pub const CORRECTION_RETENTION: f64 = 0.95;
 
 /// The correction frame `prev` carries forward, as a transform of `odom`:
-/// [`CORRECTION_RETENTION`] of its heading and position offsets from odometry.
-fn carried_correction(prepared: &[Prepared], poses: &[Iso3], prev: usize) -> Iso3 {
-    // Compared as poses, not as `pose * odometry^-1 == identity`, which rounding breaks: a
-    // replay that corrected nothing must fuse at the odometry poses bit for bit.
+/// [`CORRECTION_RETENTION`] of its heading and position offsets from odometry; `None` when
+/// its pose is the odometry's, so that a replay that corrected nothing fuses at the odometry
+/// poses bit for bit (`pose * odometry^-1` and a product with the identity both round).
+fn carried_correction(prepared: &[Prepared], poses: &[Iso3], prev: usize) -> Option<Iso3> {
     if poses[prev] == prepared[prev].odometry {
-        return Iso3::identity();
+        return None;
     }
     let full = poses[prev] * prepared[prev].odometry.inverse();
-    Iso3::from_parts(
+    Some(Iso3::from_parts(
         nalgebra::Translation3::from(full.translation.vector * CORRECTION_RETENTION),
         nalgebra::UnitQuaternion::from_axis_angle(
             &nalgebra::Vector3::z_axis(),
             yaw_of(&full) * CORRECTION_RETENTION,
         ),
-    )
+    ))
+}
+
+/// `pose` moved by the `carried` correction, if any.
+fn moved(carried: Option<&Iso3>, pose: &Iso3) -> Iso3 {
+    carried.map_or(*pose, |c| c * pose)
 }
 
 /// Localises frame `index` against the landmarks before it is fused (see
 /// [`crate::refine`]); `poses` holds the poses of the frames before it, `seen` the rays
-/// through their detections.
+/// through their detections. Returns the correction and the pose it corrects (the previous
+/// frame's pose moved by the odometry increment since).
 #[allow(clippy::too_many_arguments)]
 fn localise(
     grid: &Grid,
@@ -898,7 +894,7 @@ fn localise(
     clusters: &[[f64; 2]],
     index: usize,
     floor_map: Option<&FloorMap>,
-) -> Correction {
+) -> (Correction, Iso3) {
     let prev = index - 1;
     let p = &prepared[index];
     // Motion since the previous frame, each segment with its start pose moved by the
@@ -911,7 +907,10 @@ fn localise(
     )
     .into_iter()
     .map(|seg| {
-        let pose = drift * data.odom_at(seg.start_ns).unwrap_or(p.odometry);
+        let pose = moved(
+            drift.as_ref(),
+            &data.odom_at(seg.start_ns).unwrap_or(p.odometry),
+        );
         (seg, pose)
     })
     .collect();
@@ -929,15 +928,17 @@ fn localise(
         .into_iter()
         .map(|o| o.centroid_m)
         .collect();
-    refine(
+    let predicted = moved(drift.as_ref(), &p.odometry);
+    let correction = refine(
         &landmarks(&centroids, seen, data.camera.fx),
         clusters,
         &data.camera,
         &data.base_from_camera,
-        &predicted_pose(prepared, poses, index, prev),
+        &predicted,
         &cov,
         floor_map.map(|m| (m, &p.floor)),
-    )
+    );
+    (correction, predicted)
 }
 
 /// The floor term's settings, when refining with the floor.
