@@ -316,6 +316,15 @@ fn project(
     let cam = *camera;
     let delta = &ev.delta;
     let cols = ev.cols;
+    // The frustum's five planes, each as a linear form n . p >= 0 in camera coordinates
+    // (p.z > 0 makes `u >= 0` the same as `fx p.x + cx p.z >= 0`, and so on).
+    let planes = [
+        Vector3::new(0.0, 0.0, 1.0),
+        Vector3::new(cam.fx, 0.0, cam.cx),
+        Vector3::new(-cam.fx, 0.0, u_max - cam.cx),
+        Vector3::new(0.0, cam.fy, cam.cy),
+        Vector3::new(0.0, -cam.fy, v_max - cam.cy),
+    ];
     values
         .par_chunks_mut(slab)
         .zip(views.par_chunks_mut(slab))
@@ -327,7 +336,10 @@ fn project(
                 let p0 = camera_from_odom * Point3::new(c0[0], c0[1], c0[2]);
                 let row_lo = &mut lo[j * nz..(j + 1) * nz];
                 let row_views = &mut views[j * nz..(j + 1) * nz];
-                for k in 0..nz {
+                let Some((k_lo, k_hi)) = column_span(&planes, &p0.coords, &step_k, nz) else {
+                    continue;
+                };
+                for k in k_lo..k_hi {
                     let p = p0 + step_k * k as f64;
                     if p.z <= 1e-9 {
                         continue;
@@ -350,10 +362,129 @@ fn project(
         .sum()
 }
 
+/// The cells `k_lo..k_hi` of a column (centres `p0 + k step`, camera coordinates) that can
+/// lie inside the frustum, or None when none can. Only a bound: the caller still tests every
+/// cell in it exactly as before, so the cells updated (and their values) are the same as
+/// testing all `nz`; the span is widened by [`SPAN_MARGIN`] cells each side against rounding,
+/// and a plane nearly parallel to the column is not used to narrow it. What it saves is the
+/// cells outside the view, most of the grid for a camera inside the room.
+fn column_span(
+    planes: &[Vector3<f64>; 5],
+    p0: &Vector3<f64>,
+    step: &Vector3<f64>,
+    nz: usize,
+) -> Option<(usize, usize)> {
+    let (mut lo, mut hi) = (0.0f64, nz as f64);
+    for n in planes {
+        let a = n.dot(p0);
+        let b = n.dot(step);
+        // Scale of the terms of b: below it, b is rounding noise and its sign means nothing.
+        let scale = n.x.abs() * step.x.abs() + n.y.abs() * step.y.abs() + n.z.abs() * step.z.abs();
+        if b.abs() <= 1e-9 * scale {
+            continue;
+        }
+        // a + b k >= 0.
+        let k0 = -a / b;
+        if b > 0.0 {
+            lo = lo.max(k0);
+        } else {
+            hi = hi.min(k0);
+        }
+    }
+    let lo = (lo.floor() - SPAN_MARGIN).max(0.0);
+    let hi = (hi.ceil() + SPAN_MARGIN).min(nz as f64);
+    // f64::max/min ignore a NaN bound (a degenerate pose), so neither end is NaN here.
+    (lo < hi).then_some((lo as usize, hi as usize))
+}
+
+/// Cells added on each side of a column's computed span (see [`column_span`]).
+const SPAN_MARGIN: f64 = 2.0;
+
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::geometry::camera_mount;
+    use crate::geometry::{camera_mount, iso_from_xy_yaw};
+
+    /// The update as it was before [`column_span`]: every cell of every column tested.
+    fn integrate_every_cell(
+        g: &mut Grid,
+        camera_from_odom: &Iso3,
+        cam: &Camera,
+        ev: &TileEvidence,
+    ) {
+        let spec = g.spec;
+        let tile = f64::from(ev.tile_px);
+        for idx in 0..spec.cells() {
+            let [i, j, k] = spec.ijk(idx);
+            let c0 = spec.center(i, j, 0);
+            let step_k = camera_from_odom.rotation.to_rotation_matrix()
+                * Vector3::new(0.0, 0.0, spec.voxel_size_m);
+            let p = camera_from_odom * Point3::new(c0[0], c0[1], c0[2]) + step_k * k as f64;
+            if p.z <= 1e-9 {
+                continue;
+            }
+            let u = cam.fx * p.x / p.z + cam.cx;
+            let v = cam.fy * p.y / p.z + cam.cy;
+            if !(u >= 0.0 && u < ev.cols as f64 * tile && v >= 0.0 && v < ev.rows as f64 * tile) {
+                continue;
+            }
+            let (c, r) = ((u / tile) as usize, (v / tile) as usize);
+            g.log_odds[idx] += ev.delta[r * ev.cols + c];
+            g.views[idx] += 1;
+        }
+    }
+
+    #[test]
+    fn column_spans_skip_only_cells_outside_the_view() {
+        // Cameras inside and outside the grid, level, tilted, looking straight down and
+        // straight along z (columns parallel to the image planes): the spanned update must
+        // change exactly the cells, by exactly the values, of testing every cell.
+        let spec = GridSpec::from_bounds([-1.0, -1.0, 0.0], [1.0, 1.0, 1.2], 0.05).unwrap();
+        let cam = Camera::with_hfov(64, 48, 1.1);
+        let mut rng = crate::rng::SplitMix64::new(7);
+        let p: Vec<f32> = (0..6 * 8)
+            .map(|_| 0.01 + 0.98 * rng.uniform() as f32)
+            .collect();
+        let ev = TileEvidence::from_probabilities(6, 8, 8, &p, 0.01);
+        let mut poses: Vec<Iso3> = vec![
+            Iso3::identity(),
+            iso_from_xy_yaw(0.0, 0.0, 0.0)
+                * camera_mount([0.0, 0.0, 0.5], std::f64::consts::FRAC_PI_2),
+            iso_from_xy_yaw(-1.5, 0.2, 0.3) * camera_mount([0.1, 0.0, 0.6], 0.25),
+        ];
+        for _ in 0..40 {
+            let (x, y) = (rng.uniform() * 4.0 - 2.0, rng.uniform() * 4.0 - 2.0);
+            let yaw = rng.uniform() * std::f64::consts::TAU;
+            let pitch = rng.uniform() * 2.0 - 0.6;
+            poses.push(
+                iso_from_xy_yaw(x, y, yaw) * camera_mount([0.0, 0.0, rng.uniform() * 1.5], pitch),
+            );
+        }
+        let mut seen = 0;
+        for odom_from_camera in &poses {
+            let cfo = odom_from_camera.inverse();
+            let mut fast = Grid::new(spec, 0.01).unwrap();
+            let mut slow = fast.clone();
+            let n = fast.integrate(&cfo, &cam, &ev);
+            integrate_every_cell(&mut slow, &cfo, &cam, &ev);
+            assert_eq!(n, slow.views.iter().filter(|&&v| v > 0).count());
+            assert_eq!(fast.views, slow.views, "pose {odom_from_camera}");
+            assert!(
+                fast.log_odds
+                    .iter()
+                    .zip(&slow.log_odds)
+                    .all(|(a, b)| a.to_bits() == b.to_bits()),
+                "pose {odom_from_camera}"
+            );
+            seen += usize::from(n > 0);
+        }
+        // Most poses see part of the grid, or the comparison would be vacuous.
+        assert!(
+            seen > poses.len() / 2,
+            "{seen} of {} poses saw the grid",
+            poses.len()
+        );
+    }
 
     fn small_grid() -> Grid {
         let spec = GridSpec::from_bounds([0.0, -0.5, 0.0], [2.0, 0.5, 1.0], 0.1).unwrap();

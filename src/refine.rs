@@ -47,6 +47,8 @@ use nalgebra::{
     Vector3,
 };
 
+use rayon::prelude::*;
+
 use crate::floor::{FloorMap, FloorPatch};
 use crate::geometry::{Camera, Iso3, yaw_of};
 use crate::grid::TileEvidence;
@@ -494,17 +496,27 @@ pub fn refine(
     let mut span = half;
     for _ in 0..=FINE_ROUNDS {
         let centre = best.1;
-        for a in -span..=span {
-            for b in -span..=span {
-                for c in -span..=span {
-                    let z = centre + Vector3::new(f64::from(a), f64::from(b), f64::from(c)) * step;
-                    let s = score(&z);
-                    // Strictly better only: the first of equal candidates wins, in a fixed
-                    // order, so the choice is reproducible.
-                    if s > best.0 {
-                        best = (s, z);
-                    }
-                }
+        let offsets: Vec<Vector3<f64>> = (-span..=span)
+            .flat_map(|a| {
+                (-span..=span).flat_map(move |b| {
+                    (-span..=span)
+                        .map(move |c| Vector3::new(f64::from(a), f64::from(b), f64::from(c)))
+                })
+            })
+            .collect();
+        // Scored in parallel (each score is a pure function of its candidate), then chosen
+        // in candidate order: strictly better only, so the first of equal candidates wins
+        // and the choice does not depend on the thread count.
+        let scored: Vec<(f64, Vector3<f64>)> = offsets
+            .par_iter()
+            .map(|o| {
+                let z = centre + o * step;
+                (score(&z), z)
+            })
+            .collect();
+        for (s, z) in scored {
+            if s > best.0 {
+                best = (s, z);
             }
         }
         span = 1;

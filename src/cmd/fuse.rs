@@ -181,10 +181,16 @@ pub fn fuse(
         ],
     );
     let stream = viz::open_stream(rerun, default_rrd, &id, Some(viz::fuse_blueprint()))?;
-    let mut observer = FuseViz::new(stream.rec.clone(), VizOptions::default());
-    let result = replay(&reader, &model, &options, &mut [&mut observer]);
-    // The observer holds a handle on the recording: it must go before the stream is closed.
-    drop(observer);
+    let result = if stream.is_on() {
+        let mut observer = FuseViz::new(stream.rec.clone(), VizOptions::default());
+        let result = replay(&reader, &model, &options, &mut [&mut observer]);
+        // The observer holds a handle on the recording: it must go before the stream is
+        // closed.
+        drop(observer);
+        result
+    } else {
+        replay(&reader, &model, &options, &mut [])
+    };
     let outcome = match result {
         Ok(o) => o,
         Err(e) => {

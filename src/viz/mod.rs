@@ -62,6 +62,9 @@ pub enum Target {
         bind: String,
         memory_limit: String,
     },
+    /// `--no-rerun`: nothing is logged and observers that only feed Rerun are not run (batch
+    /// sweeps, timing the replay alone).
+    Off,
 }
 
 /// The standard Rerun flags ([`rerun::clap::RerunArgs`]) and where they send the recording:
@@ -87,6 +90,9 @@ fn target_from_matches(m: &clap::ArgMatches) -> Target {
     let given = |id: &str| {
         m.try_get_raw(id).is_ok() && m.value_source(id) == Some(ValueSource::CommandLine)
     };
+    if m.try_get_one::<bool>("no_rerun").ok().flatten() == Some(&true) {
+        return Target::Off;
+    }
     // Same precedence as RerunArgs: stdout, save, (serve), connect, spawn.
     if given("stdout") && m.get_flag("stdout") {
         return Target::Stdout;
@@ -145,7 +151,14 @@ impl clap::Args for VizArgs {
         // release build's choice to declaration order. `--stdout` stays.
         let cmd = rerun::clap::RerunArgs::augment_args(cmd)
             .mut_arg("stdout", |a| a.short(None))
-            .next_help_heading("Rerun");
+            .next_help_heading("Rerun")
+            .arg(
+                clap::Arg::new("no_rerun")
+                    .long("no-rerun")
+                    .action(clap::ArgAction::SetTrue)
+                    .conflicts_with_all(["stdout", "save", "serve", "connect"])
+                    .help("Log nothing to Rerun (no .rrd is written)"),
+            );
         match about {
             Some(a) => cmd.about(a),
             None => cmd,
@@ -175,7 +188,8 @@ pub fn recording_id(kind: &str, parts: &[&str]) -> String {
     format!("{APP_ID}-{kind}-{hex}")
 }
 
-/// An open recording; call [`VizStream::finish`] at the end.
+/// An open recording (disabled under `--no-rerun`: see [`VizStream::is_on`]); call
+/// [`VizStream::finish`] at the end.
 pub struct VizStream {
     pub rec: RecordingStream,
     /// (partial, final) when saving to a file.
@@ -229,6 +243,7 @@ pub fn open_stream(
         builder = builder.with_blueprint(bp);
     }
     let (rec, file) = match &args.target {
+        Target::Off => (RecordingStream::disabled(), None),
         Target::Default | Target::Save(_) => {
             let path = match &args.target {
                 Target::Save(p) => p.clone(),
@@ -280,6 +295,12 @@ pub fn open_stream(
 }
 
 impl VizStream {
+    /// False under `--no-rerun`: logging is a no-op, so callers skip the work that only
+    /// feeds the viewer.
+    pub fn is_on(&self) -> bool {
+        self.rec.is_enabled()
+    }
+
     /// Closes the recording of a command that failed: a saved file is removed, so nothing
     /// half-written is left that looks like a result.
     pub fn abandon(self) {
@@ -481,7 +502,15 @@ mod tests {
             target(&["--connect", "rerun+http://h:1/proxy"]),
             Target::Connect("rerun+http://h:1/proxy".into())
         );
+        assert_eq!(target(&["--no-rerun"]), Target::Off);
         assert_eq!(VizArgs::headless().target, Target::Default);
+        use clap::Parser as _;
+        // Asking for nothing and for a file at once is a usage error, not a silent choice.
+        let both = Cli::try_parse_from(["objloc", "--no-rerun", "--save", "x.rrd"]);
+        assert_eq!(
+            both.map(|_| ()).map_err(|e| e.kind()),
+            Err(clap::error::ErrorKind::ArgumentConflict)
+        );
     }
 
     #[test]
