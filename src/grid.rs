@@ -39,6 +39,8 @@ pub enum GridError {
     },
     #[error("prior {prior} must lie strictly between 0 and 1")]
     Prior { prior: f64 },
+    #[error("clamp bounds {lo} and {hi} must satisfy 0 < lo < hi < 1")]
+    Clamp { lo: f64, hi: f64 },
 }
 
 /// Where the grid is and how fine.

@@ -475,7 +475,7 @@ impl Fuser {
         let mut grid = Grid::new(spec, prior)?;
         if let Some((lo, hi)) = options.clamp {
             if !(lo > 0.0 && hi < 1.0 && lo < hi) {
-                return Err(GridError::Prior { prior: lo });
+                return Err(GridError::Clamp { lo, hi });
             }
             grid.clamp = Some((logit(lo) as f32, logit(hi) as f32));
         }

@@ -138,19 +138,27 @@ fn fuse_is_bit_identical_across_runs_and_thread_counts() {
     for (run, threads) in ["1", "2", "8", "2"].iter().enumerate() {
         let rep = dir.path().join(format!("r{run}.json"));
         let grid = dir.path().join(format!("g{run}.npy"));
-        ok(&objloc(
-            &[
-                "fuse",
-                "recordings/chair-tour.mcap",
-                "--model",
-                p(&model),
-                "--report",
-                p(&rep),
-                "--grid",
-                p(&grid),
-            ],
-            &[("RAYON_NUM_THREADS", threads)],
-        ));
+        let mut args = vec![
+            "fuse",
+            "recordings/chair-tour.mcap",
+            "--model",
+            p(&model),
+            "--report",
+            p(&rep),
+            "--grid",
+            p(&grid),
+        ];
+        // The last run logs nothing to Rerun: same report and grid, and no .rrd.
+        let quiet = run == 3;
+        if quiet {
+            args.push("--no-rerun");
+        }
+        ok(&objloc(&args, &[("RAYON_NUM_THREADS", threads)]));
+        assert_eq!(
+            rep.with_extension("rrd").exists(),
+            !quiet,
+            "run {run}: .rrd beside the report"
+        );
         let r = report(&rep);
         shas.push(r["grid"]["sha256"].as_str().unwrap().to_owned());
         grids.push(std::fs::read(&grid).unwrap());
@@ -320,6 +328,17 @@ fn fuse_refuses_bad_input_with_one_line_errors_and_no_outputs() {
         err.contains("--bounds") && err.contains("expected 6"),
         "{err}"
     );
+    // Speed noises are finite and not negative; clamp bounds are probabilities in order.
+    for (flag, value, says) in [
+        ("--sigma-v", "-1", ">= 0"),
+        ("--sigma-w", "nan", ">= 0"),
+        ("--clamp", "0.9,0.1", "0 < LO < HI < 1"),
+    ] {
+        let out = fuse(&["--model", p(&model), &format!("{flag}={value}")]);
+        assert_eq!(out.status.code(), Some(2), "{flag}={value}");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(err.contains(flag) && err.contains(says), "{err}");
+    }
     // --no-floor only means something when refining.
     let out = fuse(&["--model", p(&model), "--no-refine-poses", "--no-floor"]);
     assert_eq!(out.status.code(), Some(2));

@@ -56,16 +56,16 @@ pub struct FuseArgs {
     #[arg(long, value_name = "P")]
     pub prior: Option<f64>,
     /// Translational speed noise sigma_v, m/s.
-    #[arg(long = "sigma-v", default_value_t = FuseOptions::default().sigma_v_mps, value_name = "M/S")]
+    #[arg(long = "sigma-v", default_value_t = FuseOptions::default().sigma_v_mps, value_name = "M/S", value_parser = parse_noise)]
     pub sigma_v: f64,
     /// Rotational speed noise sigma_w, rad/s.
-    #[arg(long = "sigma-w", default_value_t = FuseOptions::default().sigma_w_radps, value_name = "RAD/S")]
+    #[arg(long = "sigma-w", default_value_t = FuseOptions::default().sigma_w_radps, value_name = "RAD/S", value_parser = parse_noise)]
     pub sigma_w: f64,
     /// What the motion blur averages: log-odds (default, measured best) or probability (the paper).
     #[arg(long, value_enum, default_value_t = BlurMode::LogOdds)]
     pub blur: BlurMode,
     /// Clamp cell probabilities to [LO, HI] after each update (off by default).
-    #[arg(long, value_name = "LO,HI", value_parser = parse_pair)]
+    #[arg(long, value_name = "LO,HI", value_parser = parse_clamp)]
     pub clamp: Option<(f64, f64)>,
     /// Frame poses from `odometry` (/odom) or `ground-truth` (/ground_truth/pose, simulated
     /// sessions: separates odometry error from classifier error).
@@ -114,9 +114,25 @@ fn parse_bounds(s: &str) -> Result<([f64; 3], [f64; 3]), String> {
     Ok(([v[0], v[1], v[2]], [v[3], v[4], v[5]]))
 }
 
-fn parse_pair(s: &str) -> Result<(f64, f64), String> {
+/// Probability bounds 0 < LO < HI < 1 (a bound at 0 or 1 is no clamp in log-odds).
+fn parse_clamp(s: &str) -> Result<(f64, f64), String> {
     let v = parse_floats(s, 2)?;
-    Ok((v[0], v[1]))
+    let (lo, hi) = (v[0], v[1]);
+    if !(0.0 < lo && lo < hi && hi < 1.0) {
+        return Err(format!(
+            "expected probabilities 0 < LO < HI < 1, got {lo} and {hi}"
+        ));
+    }
+    Ok((lo, hi))
+}
+
+/// A speed noise: finite and not negative (0 declares that motion is exact).
+fn parse_noise(s: &str) -> Result<f64, String> {
+    let v: f64 = s.trim().parse().map_err(|e| format!("{s:?}: {e}"))?;
+    if !(v.is_finite() && v >= 0.0) {
+        return Err(format!("expected a finite speed noise >= 0, got {s}"));
+    }
+    Ok(v)
 }
 
 impl FuseArgs {
