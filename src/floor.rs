@@ -192,7 +192,9 @@ impl FloorMap {
         if !(fx >= 0.0 && fy >= 0.0) {
             return None;
         }
-        let (x0, y0) = (fx.floor() as usize, fy.floor() as usize);
+        // Truncation is the floor of these non-negative values, without a libm call (the
+        // baseline x86-64 target has no rounding instruction); this is the scorer's inner loop.
+        let (x0, y0) = (fx as usize, fy as usize);
         if x0 + 1 >= self.nx || y0 + 1 >= self.ny {
             return None;
         }
