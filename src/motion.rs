@@ -87,11 +87,13 @@ fn samples_per_side(sigma_m: f64, voxel: f64) -> usize {
 /// +0.0, which the callers treat alike (a cell index of 0 and a weight of 0).
 #[inline]
 fn floor_fast(x: f64) -> f64 {
-    if !(x.abs() < 4.0e15) {
-        return x.floor();
+    if x.abs() < 4.0e15 {
+        let t = x as i64 as f64;
+        if t > x { t - 1.0 } else { t }
+    } else {
+        // Huge, infinite or NaN.
+        x.floor()
     }
-    let t = x as i64 as f64;
-    if t > x { t - 1.0 } else { t }
 }
 
 /// Normalised Gaussian weights at offsets `k * spacing`, k = -n..=n.
