@@ -109,14 +109,26 @@ pub fn summarize_grid(grid: &Grid, min_posterior: f32, min_views: u16) -> GridSu
     let mut entropy = 0.0;
     // The transcendental part in parallel, per cell; the sums below stay sequential in index
     // order, so the result does not depend on the thread count.
-    let p_h: Vec<(f64, f64)> = grid
-        .log_odds
-        .par_iter()
-        .map(|&l| {
-            let p = sigmoid(f64::from(l));
-            (p, binary_entropy_bits(p))
-        })
-        .collect();
+    // Most cells hold one of few values (the prior, outside every view, comes in long runs
+    // along a column), so each column remembers its last value: a pure function of the cell's
+    // log-odds either way.
+    let mut p_h: Vec<(f64, f64)> = vec![(0.0, 0.0); grid.log_odds.len()];
+    p_h.par_chunks_mut(nz.max(1))
+        .zip(grid.log_odds.par_chunks(nz.max(1)))
+        .for_each(|(out, col)| {
+            let mut last: Option<(u32, (f64, f64))> = None;
+            for (o, &l) in out.iter_mut().zip(col) {
+                *o = match last {
+                    Some((bits, v)) if bits == l.to_bits() => v,
+                    _ => {
+                        let p = sigmoid(f64::from(l));
+                        let v = (p, binary_entropy_bits(p));
+                        last = Some((l.to_bits(), v));
+                        v
+                    }
+                };
+            }
+        });
     for i in 0..nx {
         for j in 0..ny {
             for k in 0..nz {
