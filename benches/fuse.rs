@@ -1,4 +1,5 @@
-//! Fuser benchmarks (`cargo bench --bench fuse`): one frame's update of a 100^3 grid, one
+//! Fuser benchmarks (`cargo bench --bench fuse`): one frame's update of a 100^3 grid (camera
+//! outside looking in, the peer's case, and camera inside as on a tour), one
 //! motion blur of each kind, and how both scale with the grid; each as the median of repeated
 //! runs, with the same operations timed in NumPy (scripts/numpy_peer.py, when the venv at
 //! target/pyenv exists) as the peer for a ratio. `OBJLOC_BENCH_SCALING=1` adds grids up to
@@ -128,8 +129,8 @@ fn main() {
         sizes.push(400);
     }
     println!(
-        "{:>6} {:>12} {:>14} {:>14} {:>14} {:>14}",
-        "grid", "cells", "update ms", "translate ms", "rotate ms", "prob-blur ms"
+        "{:>6} {:>12} {:>14} {:>16} {:>14} {:>14} {:>14}",
+        "grid", "cells", "update ms", "update in ms", "translate ms", "rotate ms", "prob-blur ms"
     );
     let mut at100 = (0.0, 0.0);
     for &n in &sizes {
@@ -137,6 +138,13 @@ fn main() {
         let reps = if n <= 100 { 21 } else { 5 };
         let update = median_ms(reps, || {
             black_box(g.integrate(&cam_from_odom, &cam, &ev));
+        });
+        // The camera inside the grid, as on a tour through a room: most columns lie outside
+        // the view and are skipped after a bound per column.
+        let inside =
+            (iso_from_xy_yaw(0.0, 0.1, 0.05) * camera_mount([0.0, 0.0, 0.4], 0.25)).inverse();
+        let update_inside = median_ms(reps, || {
+            black_box(g.integrate(&inside, &cam, &ev));
         });
         let mut b = Blurrer::default();
         // A 0.5 m drive at sigma_v 0.01 m/s x 1.7 s and a 90 degree turn at 0.01 rad/s x 3 s.
@@ -153,10 +161,11 @@ fn main() {
             at100 = (update, translate.max(rotate));
         }
         println!(
-            "{:>5}^3 {:>12} {:>14.2} {:>14.2} {:>14.2} {:>14.2}",
+            "{:>5}^3 {:>12} {:>14.2} {:>16.2} {:>14.2} {:>14.2} {:>14.2}",
             n,
             n * n * n,
             update,
+            update_inside,
             translate,
             rotate,
             prob
