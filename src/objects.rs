@@ -43,7 +43,7 @@ impl Default for ObjectParams {
     fn default() -> Self {
         Self {
             min_views: 4,
-            seed_fraction: 0.8,
+            seed_fraction: 0.75,
             grow_fraction: 0.7,
             min_cells: 8,
             merge_nested: true,

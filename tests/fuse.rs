@@ -73,16 +73,21 @@ fn demo_locates_the_chair_and_writes_its_outputs() {
     let dir = tempfile::tempdir().unwrap();
     let out_dir = dir.path().join("demo");
     let text = ok(&objloc(&["demo", "--out", p(&out_dir)], &[]));
-    // "chair: located at (x, y, z) m, true centre (...) m, error E m"
+    // "chair: located at (x, y, z) m, true centre (...) m, error E m (its box's centre: B m)"
     let line = text
         .lines()
         .find(|l| l.starts_with("chair: located at"))
         .unwrap_or_else(|| panic!("no located chair in:\n{text}"));
-    let err: f64 = line
-        .rsplit("error ")
-        .next()
-        .and_then(|s| s.trim_end_matches(" m").parse().ok())
-        .unwrap_or_else(|| panic!("no error in {line:?}"));
+    let after = |key: &str| -> f64 {
+        line.split(key)
+            .nth(1)
+            .and_then(|s| s.split_whitespace().next())
+            .and_then(|s| s.parse().ok())
+            .unwrap_or_else(|| panic!("no {key:?} in {line:?}"))
+    };
+    let err = after(", error ");
+    // The box's centre is reported beside it, as its own number.
+    assert!((0.0..0.3).contains(&after("box's centre: ")), "{line}");
     // Default options refine the poses: measured 0.034 m (0.094 m with --no-refine-poses;
     // docs/fuser.md); the target is 0.08 m.
     assert!(err < 0.08, "{line}");
