@@ -8,7 +8,7 @@
 # with the room as --bounds and otherwise default options (poses refined against objects and
 # floor), with --no-floor (objects only) and with --no-refine-poses (the paper); prints
 # the object errors, missed/spurious counts and the ATE of /odom and of the fused poses.
-# Usage: [SCENES="chair ..."] scripts/measure_heldout.sh   (from the repository root; ~6 minutes)
+# Usage: [SCENES="chair ..."] scripts/measure_heldout.sh   (from the repository root; ~1.5 minutes once the sessions are recorded)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bin=target/release/objloc
