@@ -179,6 +179,8 @@ fn train_then_predict_finds_the_box() {
         feats.as_os_str(),
     ]);
     let text = ok(&out);
+    // No Rerun flag: the recording is saved beside the model.
+    assert!(model.with_extension("rrd").exists());
     assert!(text.contains("before pruning"), "{text}");
     assert!(text.contains("fraction of pixels in bin"), "{text}");
 
@@ -237,7 +239,12 @@ fn train_then_predict_finds_the_box() {
         os("--out"),
         pred.as_os_str(),
         os("--heatmaps"),
+        os("--no-rerun"),
     ]));
+    assert!(
+        !pred.join("predict.rrd").exists(),
+        "--no-rerun wrote an .rrd"
+    );
     let auc = printed_auc(&text);
     assert!(auc > 0.97, "{text}");
     // 3 labelled frames x 960 tiles. Positives: box 1 (x 100..140, y 40..100) holds cols

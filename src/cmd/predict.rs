@@ -54,7 +54,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         &id,
         Some(objloc::viz::train_blueprint()),
     )?;
-    objloc::viz::train::log_training_frames(&stream.rec, &model, std::slice::from_ref(&session))?;
+    if stream.is_on() {
+        objloc::viz::train::log_training_frames(
+            &stream.rec,
+            &model,
+            std::slice::from_ref(&session),
+        )?;
+    }
     if let Some(p) = stream.finish()? {
         println!(
             "rerun recording: {} (open it with: {})",

@@ -139,8 +139,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         Some(objloc::viz::train_blueprint()),
     )
     .context("train: opening the Rerun recording")?;
-    objloc::viz::train::log_tree(&stream.rec, &model)?;
-    objloc::viz::train::log_training_frames(&stream.rec, &model, &sessions)?;
+    if stream.is_on() {
+        objloc::viz::train::log_tree(&stream.rec, &model)?;
+        objloc::viz::train::log_training_frames(&stream.rec, &model, &sessions)?;
+    }
     if let Some(p) = stream.finish()? {
         println!(
             "rerun recording: {} (open it with: {})",
