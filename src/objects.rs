@@ -351,10 +351,11 @@ mod tests {
     fn hysteresis_grows_from_the_seed_through_weaker_cells() {
         let g = grid_with(&[
             ([2, 2, 2], [4, 4, 4], 20.0, 5),
-            // 15 / 20 = 0.75 of the peak: above the grow fraction, below the seed fraction.
-            ([4, 2, 2], [8, 4, 4], 15.0, 5),
+            // 14.5 / 20 = 0.725 of the peak: above the grow fraction (0.7), below the seed
+            // fraction (0.75).
+            ([4, 2, 2], [8, 4, 4], 14.5, 5),
             // Same strength but not connected: no seed of its own, so not an object.
-            ([12, 12, 12], [16, 16, 16], 15.0, 5),
+            ([12, 12, 12], [16, 16, 16], 14.5, 5),
         ]);
         let objs = find_objects(&g, &ObjectParams::default());
         assert_eq!(objs.len(), 1);
