@@ -156,7 +156,7 @@ impl clap::Args for VizArgs {
                 clap::Arg::new("no_rerun")
                     .long("no-rerun")
                     .action(clap::ArgAction::SetTrue)
-                    .conflicts_with_all(["stdout", "save", "serve", "connect"])
+                    .conflicts_with_all(["stdout", "save", "serve", "connect", "spawn"])
                     .help("Log nothing to Rerun (no .rrd is written)"),
             );
         match about {
@@ -506,11 +506,20 @@ mod tests {
         assert_eq!(VizArgs::headless().target, Target::Default);
         use clap::Parser as _;
         // Asking for nothing and for a file at once is a usage error, not a silent choice.
-        let both = Cli::try_parse_from(["objloc", "--no-rerun", "--save", "x.rrd"]);
-        assert_eq!(
-            both.map(|_| ()).map_err(|e| e.kind()),
-            Err(clap::error::ErrorKind::ArgumentConflict)
-        );
+        for other in [
+            &["--save", "x.rrd"][..],
+            &["--spawn"],
+            &["--stdout"],
+            &["--connect"],
+        ] {
+            let mut args = vec!["objloc", "--no-rerun"];
+            args.extend_from_slice(other);
+            assert_eq!(
+                Cli::try_parse_from(args).map(|_| ()).map_err(|e| e.kind()),
+                Err(clap::error::ErrorKind::ArgumentConflict),
+                "--no-rerun {other:?}"
+            );
+        }
     }
 
     #[test]
