@@ -157,9 +157,10 @@ pub struct FloorMap {
     /// Per cell: weight, then sum of colour (3), then sum of squared colour (3).
     acc: Vec<[f64; 7]>,
     /// Per cell, kept in step with `acc` so that scoring (hundreds of candidate poses per
-    /// frame) reads them directly: mean colour (3) and variance averaged over channels, or
-    /// NaN where the cell has not been seen.
-    stats: Vec<[f64; 4]>,
+    /// frame) reads them directly: mean colour (3), variance averaged over channels, and 1;
+    /// all zeros where the cell has not been seen, so that a bilinear lookup adds nothing
+    /// for it (no weight, no value) without a branch.
+    stats: Vec<[f64; 5]>,
     frames: usize,
 }
 
@@ -174,7 +175,7 @@ impl FloorMap {
             nx,
             ny,
             acc: vec![[0.0; 7]; nx * ny],
-            stats: vec![[f64::NAN; 4]; nx * ny],
+            stats: vec![[0.0; 5]; nx * ny],
             frames: 0,
         }
     }
@@ -230,8 +231,8 @@ impl FloorMap {
                     a[4 + ch] += ww * v * v;
                 }
                 self.stats[i] = match self.cell(i) {
-                    Some((m, var)) => [m[0], m[1], m[2], var],
-                    None => [f64::NAN; 4],
+                    Some((m, var)) => [m[0], m[1], m[2], var, 1.0],
+                    None => [0.0; 5],
                 };
             }
         }
@@ -261,13 +262,10 @@ impl FloorMap {
         let (idx, w) = self.corners(q)?;
         let mut acc = [0.0f64; 5];
         for (&i, &wi) in idx.iter().zip(&w) {
-            let st = &self.stats[i];
-            // NaN: not seen (a comparison with NaN is false).
-            if st[3] >= 0.0 {
-                for (a, &v) in acc.iter_mut().zip(st) {
-                    *a += wi * v;
-                }
-                acc[4] += wi;
+            // An unseen cell is all zeros: it adds +0.0 to sums of non-negative terms, which
+            // leaves them as they are, bit for bit.
+            for (a, &v) in acc.iter_mut().zip(&self.stats[i]) {
+                *a += wi * v;
             }
         }
         (acc[4] >= 0.5).then_some(acc)
