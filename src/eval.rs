@@ -67,12 +67,12 @@ pub struct Match {
     pub error_m: f64,
     pub centroid_m: [f64; 3],
     pub truth_center_m: [f64; 3],
-    /// Distance from the centre of the object's bounding box to the true centre. The true
-    /// centre is that of the true bounding box, which for a chair lies 0.11 m from its centre
-    /// of mass (docs/fuser.md): this says how much of `error_m` is that difference. Matching
-    /// and every target use `error_m`.
+    /// Distance from the object's mass centroid (the probability-weighted mean of its cells,
+    /// `mass_centroid_m`) to the true centre. The true centre is that of the true bounding
+    /// box, which for a chair lies 0.11 m from its centre of mass (docs/fuser.md), so this
+    /// says how far the mean would have missed. Matching and every target use `error_m`.
     #[serde(default)]
-    pub box_center_error_m: f64,
+    pub mass_centroid_error_m: f64,
 }
 
 impl Match {
@@ -81,8 +81,8 @@ impl Match {
         let [x, y, z] = self.centroid_m;
         let [tx, ty, tz] = self.truth_center_m;
         format!(
-            "{}: located at ({x:.3}, {y:.3}, {z:.3}) m, true centre ({tx:.3}, {ty:.3}, {tz:.3}) m, error {:.3} m (its box's centre: {:.3} m)",
-            self.name, self.error_m, self.box_center_error_m
+            "{}: located at ({x:.3}, {y:.3}, {z:.3}) m, true centre ({tx:.3}, {ty:.3}, {tz:.3}) m, error {:.3} m (mass centroid: {:.3} m)",
+            self.name, self.error_m, self.mass_centroid_error_m
         )
     }
 }
@@ -164,10 +164,6 @@ impl Evaluation {
     }
 }
 
-fn box_center(o: &Object) -> [f64; 3] {
-    std::array::from_fn(|a| 0.5 * (o.bbox_min_m[a] + o.bbox_max_m[a]))
-}
-
 fn dist(a: [f64; 3], b: [f64; 3]) -> f64 {
     ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
 }
@@ -203,7 +199,7 @@ pub fn match_objects(
             error_m: d,
             centroid_m: objects[o].centroid_m,
             truth_center_m: truth[t].center_m(),
-            box_center_error_m: dist(box_center(&objects[o]), truth[t].center_m()),
+            mass_centroid_error_m: dist(objects[o].mass_centroid_m, truth[t].center_m()),
         });
     }
     matches.sort_by_key(|m| m.truth_index);
@@ -295,6 +291,7 @@ mod tests {
     fn obj(c: [f64; 3]) -> Object {
         Object {
             centroid_m: c,
+            mass_centroid_m: c,
             bbox_min_m: c,
             bbox_max_m: c,
             cells: 10,
@@ -323,16 +320,15 @@ mod tests {
             },
         ];
         let mut near_first = obj([0.03, 0.04, 0.45]);
-        // Its box is off-centre from its centroid: centre (0.05, 0.05, 0.45).
-        near_first.bbox_min_m = [0.0, 0.0, 0.0];
-        near_first.bbox_max_m = [0.1, 0.1, 0.9];
+        // Its mass centroid is off its location: (0.05, 0.05, 0.45).
+        near_first.mass_centroid_m = [0.05, 0.05, 0.45];
         let objects = vec![obj([0.95, 0.0, 0.45]), near_first, obj([3.0, 3.0, 0.5])];
         let (m, missed, spurious) = match_objects(&objects, &truth);
         assert_eq!(m.len(), 2);
         assert_eq!(m[0].object_index, 1);
         assert!((m[0].error_m - 0.05).abs() < 1e-12);
-        assert!((m[0].box_center_error_m - 0.05 * 2f64.sqrt()).abs() < 1e-12);
-        assert!((m[1].box_center_error_m - 0.05).abs() < 1e-12);
+        assert!((m[0].mass_centroid_error_m - 0.05 * 2f64.sqrt()).abs() < 1e-12);
+        assert!((m[1].mass_centroid_error_m - 0.05).abs() < 1e-12);
         assert!((m[1].error_m - 0.05).abs() < 1e-12);
         assert!(missed.is_empty());
         assert_eq!(spurious, vec![2]);
@@ -366,7 +362,7 @@ mod tests {
     #[test]
     fn trajectory_error_is_the_rmse_at_the_frames() {
         use crate::replay::{FrameSummary, FuseOptions};
-        use crate::report::{GridReport, Report};
+        use crate::report::{GridReport, REPORT_VERSION, Report};
         let frame = |index: usize, stamp_ns: i64, odom: [f64; 3], used: [f64; 3]| FrameSummary {
             index,
             stamp_ns,
@@ -381,7 +377,7 @@ mod tests {
             objects: Vec::new(),
         };
         let report = Report {
-            report_version: 1,
+            report_version: REPORT_VERSION,
             objloc_version: "test".into(),
             session: "s".into(),
             session_sha256: String::new(),

@@ -926,7 +926,7 @@ fn localise(
     };
     let centroids: Vec<[f64; 3]> = find_objects(grid, &params)
         .into_iter()
-        .map(|o| o.centroid_m)
+        .map(|o| o.mass_centroid_m)
         .collect();
     let predicted = moved(drift.as_ref(), &p.odometry);
     let correction = refine(

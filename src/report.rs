@@ -12,7 +12,9 @@ use serde::{Deserialize, Serialize};
 use crate::objects::Object;
 use crate::replay::{FrameSummary, FuseOptions, Outcome};
 
-pub const REPORT_VERSION: u32 = 1;
+/// 2: objects carry `mass_centroid_m`, and `centroid_m` is the centre of the object's
+/// extent (in version 1 it was the mass centroid).
+pub const REPORT_VERSION: u32 = 2;
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct GridReport {

@@ -6,9 +6,9 @@
 //! Tolerances (docs/fuser.md has the measurements behind them):
 //!
 //! * turn bias, objects and floor: the chair within 0.06 m and the refined ATE below 0.08 m
-//!   (measured 0.035 and 0.035 m; 0.164 m and ATE 0.256 m without refinement);
+//!   (measured 0.029 and 0.035 m; 0.175 m and ATE 0.256 m without refinement);
 //! * turn bias, objects only: the chair within 0.12 m with at least a quarter of the error
-//!   gone (measured 0.101 m) and the ATE below odometry's;
+//!   gone (measured 0.103 m) and the ATE below odometry's;
 //! * exact odometry, objects only: no pose moves more than 0.03 m or 1.5 degrees (measured:
 //!   no correction passes the significance threshold, so nothing moves);
 //! * exact odometry, objects and floor: no pose moves more than 0.06 m or 1.5 degrees
@@ -232,9 +232,11 @@ fn refinement_leaves_exact_odometry_within_tolerance() {
     let tour = record(dir.path(), "0");
     let (_, plain) = fuse_and_eval(&tour, &model, Mode::Odometry, "2");
     let e_plain = chair_error(&plain);
-    // Measured 0.081 m: what is left is the classifier's and the fusion's, which refinement
-    // must not make worse.
-    assert!(e_plain < 0.1, "{e_plain}");
+    // Measured 0.103 m (the mass centroid: 0.081 m; the paper's replay blurs the belief after
+    // every command even when odometry is exact, and the extent's centre follows the blur):
+    // what is left is the classifier's and the fusion's, which refinement must not make worse
+    // (refined: 0.012 m).
+    assert!(e_plain < 0.12, "{e_plain}");
     // Odometry is the truth here: every refined pose is compared with it.
     for (mode, max_m) in [(Mode::RefinedNoFloor, 0.03), (Mode::Refined, 0.06)] {
         let (report, refined) = fuse_and_eval(&tour, &model, mode, "2");

@@ -3,10 +3,10 @@
 
 use std::path::PathBuf;
 
-use anyhow::Context;
+use anyhow::{Context, bail};
 
 use objloc::eval::{Evaluation, evaluate, true_objects};
-use objloc::report::Report;
+use objloc::report::{REPORT_VERSION, Report};
 use objloc::session::{SessionMsg, SessionReader};
 
 use super::TopicArgs;
@@ -50,7 +50,19 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     for path in &args.reports {
         let text =
             std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-        let report: Report = serde_json::from_str(&text)
+        let value: serde_json::Value =
+            serde_json::from_str(&text).with_context(|| format!("{}: not JSON", path.display()))?;
+        let version = value
+            .get("report_version")
+            .and_then(serde_json::Value::as_u64);
+        if version != Some(u64::from(REPORT_VERSION)) {
+            bail!(
+                "{}: report version {}, this objloc reads version {REPORT_VERSION}: re-run `objloc fuse` to rewrite it",
+                path.display(),
+                version.map_or_else(|| "missing".to_string(), |v| v.to_string())
+            );
+        }
+        let report: Report = serde_json::from_value(value)
             .with_context(|| format!("{}: not an objloc fuse report", path.display()))?;
         evals.push(evaluate(
             &path.display().to_string(),

@@ -270,10 +270,13 @@ pub fn print_summary(f: &Fused) {
     }
     for (i, o) in r.objects.iter().enumerate() {
         println!(
-            "object {i}: centroid ({:.3}, {:.3}, {:.3}) m, box ({:.2}, {:.2}, {:.2})..({:.2}, {:.2}, {:.2}) m, {} cells, peak p {:.4}, mean p {:.4}",
+            "object {i}: at ({:.3}, {:.3}, {:.3}) m (mass centroid ({:.3}, {:.3}, {:.3}) m), box ({:.2}, {:.2}, {:.2})..({:.2}, {:.2}, {:.2}) m, {} cells, peak p {:.4}, mean p {:.4}",
             o.centroid_m[0],
             o.centroid_m[1],
             o.centroid_m[2],
+            o.mass_centroid_m[0],
+            o.mass_centroid_m[1],
+            o.mass_centroid_m[2],
             o.bbox_min_m[0],
             o.bbox_min_m[1],
             o.bbox_min_m[2],
