@@ -100,20 +100,48 @@ pub fn find_objects_with_cells(grid: &Grid, params: &ObjectParams) -> Vec<(Objec
     let n = spec.cells();
     let mut state = vec![NONE; n];
     let mut seeds = Vec::new();
-    let max_e = (0..n)
-        .filter(|&i| grid.views[i] >= params.min_views)
-        .map(|i| grid.log_odds[i] - prior)
-        .fold(0.0f32, f32::max);
+    // Eight running maxima over zipped slices (log-odds are never NaN, and a maximum does
+    // not depend on the order it is taken in), so the compiler can vectorise the pass: it
+    // runs over every cell once per frame during pose refinement.
+    let lane_max = |acc: &mut f32, v: u16, l: f32| {
+        let e = if v >= params.min_views {
+            l - prior
+        } else {
+            0.0
+        };
+        if e > *acc {
+            *acc = e;
+        }
+    };
+    let mut lanes = [0.0f32; 8];
+    let (views8, logs8) = (grid.views.chunks_exact(8), grid.log_odds.chunks_exact(8));
+    let (views_rest, logs_rest) = (views8.remainder(), logs8.remainder());
+    for (v8, l8) in views8.zip(logs8) {
+        for k in 0..8 {
+            lane_max(&mut lanes[k], v8[k], l8[k]);
+        }
+    }
+    let mut max_e = 0.0f32;
+    for (&v, &l) in views_rest.iter().zip(logs_rest) {
+        lane_max(&mut max_e, v, l);
+    }
+    for lane in lanes {
+        if lane > max_e {
+            max_e = lane;
+        }
+    }
     if max_e <= 0.0 {
         return Vec::new();
     }
     let (seed_e, grow_e) = (params.seed_fraction * max_e, params.grow_fraction * max_e);
-    for (idx, st) in state.iter_mut().enumerate() {
-        if grid.views[idx] < params.min_views {
-            continue;
-        }
-        let e = grid.log_odds[idx] - prior;
-        if e >= grow_e {
+    for (idx, ((st, &v), &l)) in state
+        .iter_mut()
+        .zip(&grid.views)
+        .zip(&grid.log_odds)
+        .enumerate()
+    {
+        let e = l - prior;
+        if v >= params.min_views && e >= grow_e {
             *st = GROW;
             if e >= seed_e {
                 seeds.push(idx);

@@ -92,6 +92,12 @@ const SEARCH_SIGMAS: f64 = 3.0;
 const COARSE_STEPS: i32 = 9;
 /// Finer 3x3x3 rounds around the best candidate, each at half the previous step.
 const FINE_ROUNDS: usize = 4;
+/// The coarse round (729 of the ~840 candidates) scores the floor on every second cell of
+/// the patch; the fine rounds use every cell. Measured on the 4 shipped and 24
+/// held-out-style tours: every object error the same but one (+0.001 m on average, worst
+/// unchanged at 0.081 m; mean ATE 0.058 -> 0.053 m), the chair tour's replay 17-25 % faster.
+/// Every third cell lost a session (a chair at 0.153 m).
+const COARSE_FLOOR_STRIDE: usize = 2;
 
 /// The correction chosen for one frame, relative to the predicted pose.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -471,11 +477,13 @@ pub fn refine(
             })
             .collect();
     // z: whitened coordinates; the correction is L z and its log prior -|z|^2 / 2.
-    let score = |z: &Vector3<f64>| -> f64 {
+    let score = |z: &Vector3<f64>, stride: usize| -> f64 {
         let d = l * z;
         let odom_from_base = apply(predicted, d.x, d.y, d.z);
         let camera_from_odom = (odom_from_base * base_from_camera).inverse();
-        let mut log_lik = floor.map_or(0.0, |(map, patch)| map.score(patch, &odom_from_base));
+        let mut log_lik = floor.map_or(0.0, |(map, patch)| {
+            map.score_every(patch, &odom_from_base, stride)
+        });
         for (&(i, j), info) in pairs.iter().zip(&infos) {
             let r2 = match project(camera, &camera_from_odom, &landmarks[i].position_m) {
                 Some(p) => {
@@ -489,12 +497,13 @@ pub fn refine(
         }
         log_lik - 0.5 * z.norm_squared()
     };
-    let base_score = score(&Vector3::zeros());
+    let base_score = score(&Vector3::zeros(), 1);
     let mut best = (base_score, Vector3::zeros());
     let half = COARSE_STEPS / 2;
     let mut step = SEARCH_SIGMAS / f64::from(half);
     let mut span = half;
-    for _ in 0..=FINE_ROUNDS {
+    for round in 0..=FINE_ROUNDS {
+        let stride = if round == 0 { COARSE_FLOOR_STRIDE } else { 1 };
         let centre = best.1;
         let offsets: Vec<Vector3<f64>> = (-span..=span)
             .flat_map(|a| {
@@ -511,12 +520,24 @@ pub fn refine(
             .par_iter()
             .map(|o| {
                 let z = centre + o * step;
-                (score(&z), z)
+                (score(&z, stride), z)
             })
             .collect();
-        for (s, z) in scored {
-            if s > best.0 {
-                best = (s, z);
+        if stride > 1 {
+            // The coarse round compares estimates with each other only; the winner is then
+            // scored in full, so that the fine rounds and the gain compare full scores.
+            let mut top = scored[0];
+            for &(s, z) in &scored[1..] {
+                if s > top.0 {
+                    top = (s, z);
+                }
+            }
+            best = (score(&top.1, 1), top.1);
+        } else {
+            for (s, z) in scored {
+                if s > best.0 {
+                    best = (s, z);
+                }
             }
         }
         span = 1;
