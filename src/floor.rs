@@ -372,6 +372,49 @@ mod tests {
     }
 
     #[test]
+    fn a_strided_score_uses_every_stride_th_cell_scaled_to_the_patch() {
+        let params = FloorParams::default();
+        let c = params.cell_m;
+        let mut map = FloorMap::new([0.0, 0.0], [1.0, 1.0], params);
+        // A black floor, seen once at cell centres.
+        let centres: Vec<[f64; 2]> = (0..10)
+            .flat_map(|i| (0..10).map(move |j| [(i as f64 + 0.5) * c, (j as f64 + 0.5) * c]))
+            .collect();
+        let floor = FloorPatch {
+            colour: vec![[0.0; 3]; centres.len()],
+            pixels: vec![16; centres.len()],
+            points_m: centres,
+        };
+        let identity = Iso3::identity();
+        map.add(&floor, &identity);
+        // Four cells inside the map: black, white, black, white. A black cell fits exactly
+        // (residual 0); a white one is off by 1 per channel, far beyond the colour noise, so
+        // its squared residual is truncated at `cap`.
+        let cap = params.truncate_sigmas * params.truncate_sigmas;
+        let points_m = vec![[0.35, 0.35], [0.45, 0.35], [0.55, 0.35], [0.65, 0.35]];
+        let black_white = FloorPatch {
+            colour: vec![[0.0; 3], [1.0; 3], [0.0; 3], [1.0; 3]],
+            pixels: vec![16; 4],
+            points_m: points_m.clone(),
+        };
+        let full = map.score(&black_white, &identity);
+        assert!(
+            (full - (-0.5 * 2.0 * cap * params.weight)).abs() < 1e-9,
+            "{full}"
+        );
+        assert_eq!(map.score_every(&black_white, &identity, 1), full);
+        // Every second cell: the two black ones, scaled by 4 / 2: still 0.
+        assert_eq!(map.score_every(&black_white, &identity, 2), 0.0);
+        // White first: the two white ones, scaled by 2: twice the full score.
+        let white_black = FloorPatch {
+            colour: vec![[1.0; 3], [0.0; 3], [1.0; 3], [0.0; 3]],
+            ..black_white
+        };
+        let every_second = map.score_every(&white_black, &identity, 2);
+        assert!((every_second - 2.0 * full).abs() < 1e-9, "{every_second}");
+    }
+
+    #[test]
     fn the_score_peaks_at_the_pose_the_map_was_built_with() {
         // A synthetic floor: two patches of a checkered rug, seen from one pose; the same
         // patch scores best at that pose and worse 0.2 m or 5 degrees off it.
