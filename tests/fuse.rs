@@ -118,7 +118,7 @@ fn demo_locates_the_chair_and_writes_its_outputs() {
             .collect()
     };
     let (plain, refined) = (row("drift-odometry"), row("drift-refined"));
-    // Measured 0.414 m and 0.028 m; trajectory 0.488 m and 0.054 m (docs/fuser.md).
+    // Measured 0.386 m and 0.012 m; trajectory 0.488 m and 0.037 m (docs/fuser.md).
     assert_eq!(refined[0], 1.0, "{refined:?}");
     assert!(plain[1] > 0.3 && refined[1] < 0.08, "{plain:?} {refined:?}");
     assert!(
