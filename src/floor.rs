@@ -313,7 +313,8 @@ impl FloorMap {
             }
             sum -= 0.5 * r2;
         }
-        if stride > 1 && used > 0 {
+        if used > 0 {
+            // Exactly 1 for stride 1, so the full score is unchanged bit for bit.
             sum *= patch.points_m.len() as f64 / used as f64;
         }
         sum * self.params.weight

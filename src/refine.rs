@@ -523,23 +523,23 @@ pub fn refine(
                 (score(&z, stride), z)
             })
             .collect();
-        if stride > 1 {
-            // The coarse round compares estimates with each other only; the winner is then
-            // scored in full, so that the fine rounds and the gain compare full scores.
-            let mut top = scored[0];
-            for &(s, z) in &scored[1..] {
-                if s > top.0 {
-                    top = (s, z);
-                }
-            }
-            best = (score(&top.1, 1), top.1);
+        // A strided round compares estimates with each other only; its winner is then
+        // scored in full, so that the fine rounds and the gain compare full scores.
+        let mut top = if stride > 1 {
+            (f64::NEG_INFINITY, centre)
         } else {
-            for (s, z) in scored {
-                if s > best.0 {
-                    best = (s, z);
-                }
+            best
+        };
+        for (s, z) in scored {
+            if s > top.0 {
+                top = (s, z);
             }
         }
+        best = if stride > 1 {
+            (score(&top.1, 1), top.1)
+        } else {
+            top
+        };
         span = 1;
         step /= 2.0;
     }
