@@ -9,7 +9,7 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use objloc::dataset::{LoadedSession, SessionFrame, load_session};
-use objloc::features::{FeatureKind, TileFeature};
+use objloc::features::FeatureKind;
 use objloc::model::{TrainConfig, examples, fit_model};
 use objloc::msgs::RegionOfInterest;
 use objloc::session::{Rgb8, Topics};
@@ -100,11 +100,29 @@ fn main() {
     };
     let sessions = vec![session];
     let labelled = sessions[0].frames.len();
-    for features in [FeatureKind::Hsv, FeatureKind::Rgb332] {
-        let cfg = TrainConfig {
-            features,
-            ..TrainConfig::default()
-        };
+    let default = TrainConfig::default();
+    let Some(region) = default.region_config() else {
+        eprintln!("error: the default configuration has no region head");
+        std::process::exit(1);
+    };
+    // The tile head with either quantisation, then the default model's region head; a default
+    // `objloc train` fits the rgb332 tile head and the region head.
+    let heads = [
+        (
+            "tile head, hsv",
+            TrainConfig {
+                features: FeatureKind::Hsv,
+                ..default.clone()
+            },
+        ),
+        ("tile head, rgb332 (default)", default.clone()),
+        (
+            "region head (default: hsv + 2 tiles around, stride 2)",
+            region,
+        ),
+    ];
+    let mut default_total = 0.0;
+    for (name, cfg) in heads {
         let (mut t_ex, mut t_fit, mut t_pred) = (Vec::new(), Vec::new(), Vec::new());
         let mut summary = String::new();
         for _ in 0..RUNS {
@@ -138,9 +156,11 @@ fn main() {
             );
         }
         let (ex, fit, pred) = (median(t_ex), median(t_fit), median(t_pred));
+        if name != "tile head, hsv" {
+            default_total += ex + fit;
+        }
         println!(
-            "{} ({labelled} labelled frames of {}, {summary}): median of {RUNS}: examples {ex:.1} ms, fit {fit:.1} ms, train total {:.1} ms; predict {pred:.3} ms/frame",
-            features.name(),
+            "{name} ({labelled} labelled frames of {}, {summary}): median of {RUNS}: examples {ex:.1} ms, fit {fit:.1} ms, train total {:.1} ms; predict {pred:.3} ms/frame",
             if path.exists() {
                 path.display().to_string()
             } else {
@@ -149,4 +169,7 @@ fn main() {
             ex + fit
         );
     }
+    println!(
+        "default model (rgb332 tile head + region head): train total {default_total:.1} ms (sum of the medians)"
+    );
 }

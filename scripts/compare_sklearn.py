@@ -12,7 +12,10 @@ target/pyenv (python3 -m venv), installs them there and re-runs itself with that
 
 Usage (from the repository root, after `cargo build --release`):
     python3 scripts/compare_sklearn.py [--session recordings/chair-train.mcap]
-        [--features hsv] [--train-stride 4] [--repeats 3]
+        [--features hsv] [--train-stride 4] [--context-tiles 0] [--repeats 3]
+The tile head is compared (objloc trains with --no-region); for the region head of a default
+model, pass --features hsv --context-tiles 2 --train-stride 2 (the same tree: the region head
+is trained as a tile head with those options).
 """
 
 import argparse
@@ -50,6 +53,9 @@ def main():
     ap.add_argument("--session", default=os.path.join(ROOT, "recordings", "chair-train.mcap"))
     ap.add_argument("--features", default="hsv")
     ap.add_argument("--train-stride", default="4")
+    ap.add_argument("--context-tiles", default="0",
+                    help="neighbourhood radius; the region head of `objloc train` is "
+                         "--features hsv --context-tiles 2 --train-stride 2")
     ap.add_argument("--seed", default="0")
     ap.add_argument("--objloc", default=os.path.join(ROOT, "target", "release", "objloc"))
     ap.add_argument("--out", default=os.path.join(ROOT, "target", "compare_sklearn"))
@@ -70,6 +76,7 @@ def main():
         r = subprocess.run(
             [args.objloc, "train", args.session, "-o", model_path, "--features", args.features,
              "--train-stride", args.train_stride, "--seed", args.seed,
+             "--context-tiles", args.context_tiles, "--no-region", "--no-rerun",
              "--export-features", feats],
             capture_output=True, text=True)
         if r.returncode != 0:
@@ -151,9 +158,10 @@ def main():
          roc_auc_score(y[te], proba(full, X[te]))),
     ]
     n_tr, n_te, n_pr = int(tr.sum()), int(te.sum()), int(pr.sum())
-    print("session %s, features %s, train stride %s: %d examples x %d features "
+    print("session %s, features %s, context %s tiles, train stride %s: %d examples x %d features "
           "(train %d / %d positive, test %d / %d, prune %d / %d)"
-          % (os.path.relpath(args.session, ROOT), args.features, args.train_stride, X.shape[0],
+          % (os.path.relpath(args.session, ROOT), args.features, args.context_tiles,
+             args.train_stride, X.shape[0],
              X.shape[1], n_tr, int(ytr.sum()), n_te, int(y[te].sum()), n_pr, int(y[pr].sum())))
     print("%-38s %10s %7s %9s %9s %8s" % ("model", "fit s", "nodes", "accuracy", "log-loss", "AUC"))
     for name, t, nodes, acc, ll, auc in rows:

@@ -1,10 +1,12 @@
 //! The trained tile classifier as a file: versioned JSON with the feature spec, tile size,
 //! tree, the fuser's prior (`base_rate`) and how it was trained; plus per-frame prediction.
+//! A model has two heads: its own tree (the tile head, the fuser's evidence) and, nested, the
+//! region head that `predict` answers with (see [`Model::region`]).
 //!
 //! Invariants: a model that loads has version [`MODEL_VERSION`], a feature kind whose bin
 //! count equals the tree's feature count, a tile size in [`TILE_PX_RANGE`], a base rate
 //! strictly inside (0, 1) and a tree that passes [`Tree::validate`], so `predict` cannot
-//! panic on it. Saving goes through `write_atomic`; the JSON holds no clock value, so the
+//! panic on it; the same holds for the region head, whose tile size is the model's. Saving goes through `write_atomic`; the JSON holds no clock value, so the
 //! same training inputs give the same bytes.
 
 use std::path::{Path, PathBuf};
@@ -19,7 +21,8 @@ use crate::features::{FeatureKind, TileFeature, tile_histograms, with_context};
 use crate::session::Rgb8;
 use crate::tree::{Examples, FitReport, Metrics, Third, Tree, TreeError, TreeParams, fit, metrics};
 
-pub const MODEL_VERSION: u32 = 1;
+/// 2: the model may carry a region head (`region`), the tree `predict` answers with.
+pub const MODEL_VERSION: u32 = 2;
 /// Largest neighbourhood radius a model may ask for (a 9 x 9 window of tiles).
 pub const MAX_CONTEXT_TILES: u32 = 4;
 
@@ -111,6 +114,14 @@ pub struct Model {
     /// Fraction of positive training examples: the fuser's prior.
     pub base_rate: f64,
     pub metadata: TrainingMetadata,
+    /// The region head: a second tree, trained on the same labels with features of the tile's
+    /// neighbourhood, that answers the labels' question "is this tile inside the object's
+    /// rectangle?" (`predict`'s maps). The outer tree (the tile head) answers "does this tile
+    /// show the object?" from the tile's own colours: the evidence the fuser's rays need,
+    /// since a ray through a hole in a chair does not meet the chair (docs/tree.md). Same
+    /// tile size; a region head has no region head of its own.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub region: Option<Box<Model>>,
 }
 
 /// Per-tile probabilities of one frame, row-major: `p[r * cols + c]`.
@@ -229,7 +240,28 @@ impl Model {
                 self.base_rate
             )));
         }
-        self.tree.validate().map_err(Err)
+        self.tree.validate().map_err(Err)?;
+        if let Some(region) = &self.region {
+            let prefix =
+                |e: Result<String, TreeError>| e.map(|what| format!("region head: {what}"));
+            if region.region.is_some() {
+                return Err(Ok("region head: has a region head of its own".to_owned()));
+            }
+            if region.tile_px != self.tile_px {
+                return Err(Ok(format!(
+                    "region head: tile size {} px differs from the model's {} px",
+                    region.tile_px, self.tile_px
+                )));
+            }
+            region.check().map_err(prefix)?;
+        }
+        Ok(())
+    }
+
+    /// The head whose maps `predict` writes as `probs.npy`: the region head when there is
+    /// one, else the tile head.
+    pub fn region_head(&self) -> &Model {
+        self.region.as_deref().unwrap_or(self)
     }
 
     pub fn save(&self, path: &Path) -> Result<(), ModelError> {
@@ -288,13 +320,32 @@ impl Model {
     /// The training table: examples per third, tree size before and after pruning, test
     /// metrics and the top splits in words.
     pub fn summary_table(&self) -> String {
+        let mut s = String::from(
+            "tile head (the tile's own colours: the fuser's evidence, tile_probs.npy)\n",
+        );
+        s.push_str(&self.head_table());
+        if let Some(region) = &self.region {
+            s.push_str(
+                "\nregion head (the tile and its neighbourhood: inside the labelled rectangle? predict's probs.npy)\n",
+            );
+            s.push_str(&region.head_table());
+        }
+        s
+    }
+
+    fn head_table(&self) -> String {
         use std::fmt::Write;
         let m = &self.metadata;
         let e = &m.examples;
         let mut s = String::new();
+        let context = if self.context_tiles > 0 {
+            format!(" + {} tiles around", self.context_tiles)
+        } else {
+            String::new()
+        };
         let _ = writeln!(
             s,
-            "features {} | tile {} px | train stride {} px | seed {} | {} labelled frames",
+            "features {}{context} | tile {} px | train stride {} px | seed {} | {} labelled frames",
             self.features.name(),
             self.tile_px,
             m.train_stride_px,
@@ -355,7 +406,9 @@ impl Model {
                 t.accuracy, t.log_loss
             );
         }
-        let _ = writeln!(s, "base rate (fuser prior) {:.6}", self.base_rate);
+        if self.region.is_some() || self.context_tiles == 0 {
+            let _ = writeln!(s, "base rate (fuser prior) {:.6}", self.base_rate);
+        }
         let _ = writeln!(s, "top splits:");
         for line in self.top_splits(5) {
             let _ = writeln!(s, "  {line}");
@@ -393,9 +446,15 @@ impl Model {
 #[derive(Debug, Clone)]
 pub struct SessionPrediction {
     pub stamps_ns: Vec<i64>,
+    /// The region head's maps ([`Model::region_head`]): `probs.npy`.
     pub maps: Vec<ProbMap>,
-    /// Tile metrics over the frames that have a label (None: no labelled frame).
+    /// The tile head's maps, what the fuser integrates: `tile_probs.npy` (the same as `maps`
+    /// for a model without a region head).
+    pub tile_maps: Vec<ProbMap>,
+    /// Tile metrics of `maps` over the frames that have a label (None: no labelled frame).
     pub labelled: Option<Metrics>,
+    /// The same for `tile_maps`.
+    pub tile_labelled: Option<Metrics>,
     pub labelled_frames: usize,
 }
 
@@ -421,35 +480,52 @@ impl Model {
                 });
             }
         }
-        let maps: Vec<ProbMap> = session
+        let tile_maps: Vec<ProbMap> = session
             .frames
             .par_iter()
             .map(|f| self.predict(&f.image))
             .collect();
-        let mut p = Vec::new();
-        let mut y = Vec::new();
-        let mut labelled_frames = 0;
-        for (f, m) in session.frames.iter().zip(&maps) {
-            if let Some(regions) = &f.regions {
-                labelled_frames += 1;
-                p.extend(m.p.iter().map(|&v| v as f64));
-                y.extend(crate::dataset::tile_labels(
-                    regions, m.rows, m.cols, m.tile_px,
-                ));
+        let maps: Vec<ProbMap> = match &self.region {
+            Some(region) => session
+                .frames
+                .par_iter()
+                .map(|f| region.predict(&f.image))
+                .collect(),
+            None => tile_maps.clone(),
+        };
+        let labelled_frames = session
+            .frames
+            .iter()
+            .filter(|f| f.regions.is_some())
+            .count();
+        let score = |maps: &[ProbMap]| {
+            let mut p = Vec::new();
+            let mut y = Vec::new();
+            for (f, m) in session.frames.iter().zip(maps) {
+                if let Some(regions) = &f.regions {
+                    p.extend(m.p.iter().map(|&v| v as f64));
+                    y.extend(crate::dataset::tile_labels(
+                        regions, m.rows, m.cols, m.tile_px,
+                    ));
+                }
             }
-        }
+            (labelled_frames > 0).then(|| metrics(&p, &y))
+        };
         Ok(SessionPrediction {
             stamps_ns: session.frames.iter().map(|f| f.stamp_ns).collect(),
+            labelled: score(&maps),
+            tile_labelled: score(&tile_maps),
             maps,
-            labelled: (labelled_frames > 0).then(|| metrics(&p, &y)),
+            tile_maps,
             labelled_frames,
         })
     }
 }
 
 impl SessionPrediction {
-    /// Writes `probs.npy` (float32 frames x rows x cols) and `stamps.npy` (int64 ns) into
-    /// `dir`, and with `heatmaps` a `heatmap_NNNNN.png` per frame.
+    /// Writes `probs.npy` (float32 frames x rows x cols: the region head's maps),
+    /// `tile_probs.npy` (the tile head's, the fuser's evidence), `labels.npy` (int8, same
+    /// shape) and `stamps.npy` (int64 ns) into `dir`, and with `heatmaps` a `heatmap_NNNNN.png` per frame.
     pub fn write(
         &self,
         dir: &Path,
@@ -463,6 +539,11 @@ impl SessionPrediction {
         std::fs::create_dir_all(dir).map_err(io(dir))?;
         let (rows, cols) = self.maps.first().map_or((0, 0), |m| (m.rows, m.cols));
         let probs: Vec<f32> = self.maps.iter().flat_map(|m| m.p.iter().copied()).collect();
+        let tile_probs: Vec<f32> = self
+            .tile_maps
+            .iter()
+            .flat_map(|m| m.p.iter().copied())
+            .collect();
         let npy = |e: crate::npy::NpyError| match e {
             crate::npy::NpyError::Io { path, source } => ModelError::Io {
                 path: path.into(),
@@ -477,6 +558,32 @@ impl SessionPrediction {
             &dir.join("probs.npy"),
             &[self.maps.len(), rows, cols],
             &probs,
+        )
+        .map_err(npy)?;
+        crate::npy::write(
+            &dir.join("tile_probs.npy"),
+            &[self.tile_maps.len(), rows, cols],
+            &tile_probs,
+        )
+        .map_err(npy)?;
+        // The tile labels beside the maps, so that a map can be scored without the session:
+        // 1 inside a labelled rectangle, 0 outside, -1 for every tile of an unlabelled frame.
+        let labels: Vec<i8> = session
+            .frames
+            .iter()
+            .zip(&self.maps)
+            .flat_map(|(f, m)| match &f.regions {
+                Some(regions) => crate::dataset::tile_labels(regions, m.rows, m.cols, m.tile_px)
+                    .into_iter()
+                    .map(i8::from)
+                    .collect(),
+                None => vec![-1; m.p.len()],
+            })
+            .collect();
+        crate::npy::write(
+            &dir.join("labels.npy"),
+            &[self.maps.len(), rows, cols],
+            &labels,
         )
         .map_err(npy)?;
         crate::npy::write(
@@ -518,6 +625,31 @@ pub struct TrainConfig {
     pub seed: u64,
     pub object: Option<String>,
     pub tree: TreeParams,
+    /// How to train the region head (None: no region head; `predict` then writes the tile
+    /// head's maps).
+    pub region: Option<RegionConfig>,
+}
+
+/// What the region head's examples differ in; the tile size, seed, labels and tree options
+/// are the tile head's.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RegionConfig {
+    pub features: FeatureKind,
+    pub context_tiles: u32,
+    pub train_stride_px: u32,
+}
+
+/// hsv, the mean histogram of the 5 x 5 tiles around, shifted grids every 2 px: the best
+/// tile AUC against rectangle labels of what was measured, and the steadiest across seeds
+/// (docs/tree.md, "Tour AUC and the 0.95 target").
+impl Default for RegionConfig {
+    fn default() -> Self {
+        Self {
+            features: FeatureKind::Hsv,
+            context_tiles: 2,
+            train_stride_px: 2,
+        }
+    }
 }
 
 /// The defaults of `objloc train`: rgb332 features (they fuse best, docs/fuser.md), 8 px
@@ -532,11 +664,23 @@ impl Default for TrainConfig {
             seed: 0,
             object: None,
             tree: TreeParams::default(),
+            region: Some(RegionConfig::default()),
         }
     }
 }
 
 impl TrainConfig {
+    /// The configuration of the region head as a head of its own (None: no region head).
+    pub fn region_config(&self) -> Option<TrainConfig> {
+        self.region.map(|r| TrainConfig {
+            features: r.features,
+            context_tiles: r.context_tiles,
+            train_stride_px: r.train_stride_px,
+            region: None,
+            ..self.clone()
+        })
+    }
+
     pub fn example_params(&self) -> ExampleParams {
         ExampleParams {
             features: self.features,
@@ -627,5 +771,6 @@ pub fn fit_model(
         base_rate: metadata.fit.base_rate,
         tree,
         metadata,
+        region: None,
     })
 }

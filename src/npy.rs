@@ -40,6 +40,12 @@ impl NpyElem for u8 {
         out.push(self);
     }
 }
+impl NpyElem for i8 {
+    const DESCR: &'static str = "|i1";
+    fn put(self, out: &mut Vec<u8>) {
+        out.push(self as u8);
+    }
+}
 impl NpyElem for i64 {
     const DESCR: &'static str = "<i8";
     fn put(self, out: &mut Vec<u8>) {

@@ -72,6 +72,15 @@ impl Examples {
         self.thirds.push(third);
     }
 
+    /// Adds one example from its non-zero (feature, count) entries in feature order.
+    pub fn push_sparse(&mut self, entries: &[(u16, u16)], label: bool, third: Third) {
+        debug_assert!(entries.windows(2).all(|w| w[0].0 < w[1].0));
+        self.entries.extend_from_slice(entries);
+        self.offsets.push(self.entries.len() as u32);
+        self.labels.push(label);
+        self.thirds.push(third);
+    }
+
     pub fn sparse(&self, i: usize) -> &[(u16, u16)] {
         &self.entries[self.offsets[i] as usize..self.offsets[i + 1] as usize]
     }

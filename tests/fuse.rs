@@ -218,7 +218,7 @@ fn grid_matches_an_independent_numpy_update() {
         Command::new(python())
             .arg(repo_dir().join("tests/py/independent_update.py"))
             .arg(repo_dir().join("recordings/chair-tour.mcap"))
-            .arg(pred.join("probs.npy"))
+            .arg(pred.join("tile_probs.npy"))
             .arg(pred.join("stamps.npy"))
             .arg(&rep)
             .arg(&grid),

@@ -1022,7 +1022,7 @@ fn model_files_corrupt_of_another_version_or_feature_spec() {
         ("half.json", text[..text.len() / 2].to_owned(), "m"),
         (
             "v9.json",
-            text.replacen("\"version\": 1", "\"version\": 9", 1),
+            text.replacen("\"version\": 2", "\"version\": 9", 1),
             "model version 9 is not supported",
         ),
         (

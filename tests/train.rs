@@ -185,7 +185,14 @@ fn train_then_predict_finds_the_box() {
     assert!(text.contains("fraction of pixels in bin"), "{text}");
 
     let m: serde_json::Value = serde_json::from_slice(&std::fs::read(&model).unwrap()).unwrap();
-    assert_eq!(m["version"], 1);
+    assert_eq!(m["version"], 2);
+    // The region head: hsv, the 5 x 5 tiles around, shifted grids every 2 px.
+    assert_eq!(m["region"]["features"], "hsv");
+    assert_eq!(m["region"]["context_tiles"], 2);
+    assert_eq!(m["region"]["tree"]["n_features"], 512);
+    assert_eq!(m["region"]["metadata"]["train_stride_px"], 2);
+    assert!(m["region"].get("region").is_none());
+    assert!(text.contains("region head"), "{text}");
     assert_eq!(m["features"], "rgb332");
     assert_eq!(m["tile_px"], 8);
     let meta = &m["metadata"];
@@ -253,6 +260,25 @@ fn train_then_predict_finds_the_box() {
     assert!(text.contains("2880 tiles, 43 positive"), "{text}");
     let (probs, data) = objloc::npy::read_f32(&pred.join("probs.npy")).unwrap();
     assert_eq!(probs, vec![4, 30, 32]);
+    let (tile_shape, tile_data) = objloc::npy::read_f32(&pred.join("tile_probs.npy")).unwrap();
+    assert_eq!(tile_shape, vec![4, 30, 32]);
+    // The two heads are two trees: their maps differ.
+    assert_ne!(tile_data, data);
+    // labels.npy: int8, 1 inside a rectangle, 0 outside, -1 for the unlabelled frame 3.
+    let (hl, data_bytes) = read_npy_header(&pred.join("labels.npy"));
+    assert!(hl.contains("'|i1'") && hl.contains("(4, 30, 32)"), "{hl}");
+    let raw = std::fs::read(pred.join("labels.npy")).unwrap();
+    let labels = &raw[raw.len() - data_bytes..];
+    assert_eq!(labels.len(), 4 * 960);
+    let count = |frame: usize, v: u8| {
+        labels[frame * 960..(frame + 1) * 960]
+            .iter()
+            .filter(|&&l| l == v)
+            .count()
+    };
+    assert_eq!(count(0, 1) + count(1, 1) + count(2, 1), 43);
+    assert_eq!((count(2, 1), count(3, 0xff)), (0, 960));
+    assert_eq!(labels[6 * 32 + 14], 1);
     // Tile (row 6, col 14) is inside box 1 of frame 0; tile (0, 0) is background.
     assert!(data[6 * 32 + 14] > 0.5, "{}", data[6 * 32 + 14]);
     assert!(data[0] < 0.05, "{}", data[0]);
@@ -369,10 +395,10 @@ fn bad_inputs_fail_with_one_line_and_no_output() {
     let text = std::fs::read_to_string(&model).unwrap();
     for (name, from, to, expect) in [
         (
-            "v2.json",
-            "\"version\": 1",
+            "v3.json",
             "\"version\": 2",
-            "model version 2 is not supported",
+            "\"version\": 3",
+            "model version 3 is not supported",
         ),
         (
             "feat.json",
@@ -392,6 +418,13 @@ fn bad_inputs_fail_with_one_line_and_no_output() {
             "\"context_tiles\": 0",
             "\"context_tiles\": 1",
             "tree has 256 features but feature spec \"rgb332\" (context 1 tiles) has 512",
+        ),
+        (
+            // The region head's maps must line up with the tile head's.
+            "rtile.json",
+            "\"features\": \"hsv\",\n    \"tile_px\": 8",
+            "\"features\": \"hsv\",\n    \"tile_px\": 16",
+            "region head: tile size 16 px differs from the model's 8 px",
         ),
     ] {
         let bad = dir.path().join(name);
@@ -413,56 +446,74 @@ fn bad_inputs_fail_with_one_line_and_no_output() {
 }
 
 /// The tile ROC AUC in what `objloc predict` printed.
+/// The last tile AUC `predict` printed: that of probs.npy.
 fn printed_auc(text: &str) -> f64 {
-    text.split("tile ROC AUC ")
-        .nth(1)
+    text.rsplit("tile ROC AUC ")
+        .next()
+        .filter(|_| text.contains("tile ROC AUC "))
         .and_then(|s| s.split(',').next())
         .and_then(|s| s.parse().ok())
         .unwrap_or_else(|| panic!("no AUC in {text}"))
 }
 
-/// The tile ROC AUC `objloc predict` prints for `tour` with `model`.
-fn tour_auc(tour: &Path, model: &Path, out: &Path) -> f64 {
-    printed_auc(&ok(&objloc(&[
-        os("predict"),
-        tour.as_os_str(),
-        os("--model"),
-        model.as_os_str(),
-        os("--out"),
-        out.as_os_str(),
-    ])))
+/// The AUC of the tile head (tile_probs.npy) that `predict` prints before probs.npy's.
+fn printed_tile_head_auc(text: &str) -> f64 {
+    text.split("tile head (tile_probs.npy, the fuser's evidence): tile ROC AUC ")
+        .nth(1)
+        .and_then(|s| s.split(',').next())
+        .and_then(|s| s.parse().ok())
+        .unwrap_or_else(|| panic!("no tile head AUC in {text}"))
 }
 
 #[test]
-fn neighbourhood_histograms_lift_the_chair_tour_auc_over_the_rectangle_labels() {
+fn the_region_head_meets_the_tour_auc_target_the_tile_head_cannot() {
     // The chair's rectangles hold the background seen through it; the tile alone cannot
     // tell it from the same background elsewhere, its neighbourhood can (docs/tree.md).
+    // Issue #4's target: tile AUC >= 0.95 on the shipped tours, default options.
     let dir = tempfile::tempdir().unwrap();
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let train = root.join("recordings/chair-train.mcap");
-    let tour = root.join("recordings/chair-tour.mcap");
+    let rec = |name: &str| root.join("recordings").join(name);
     let mut aucs = Vec::new();
-    for ctx in ["0", "2"] {
-        let model = dir.path().join(format!("ctx{ctx}.json"));
-        let text = ok(&objloc(&[
+    for (train, tours) in [
+        (
+            "chair-train.mcap",
+            &[
+                "chair-tour.mcap",
+                "two-chairs-tour.mcap",
+                "chair-tour-drift.mcap",
+            ][..],
+        ),
+        ("bottle-train.mcap", &["bottle-tour.mcap"][..]),
+    ] {
+        let model = dir.path().join(train.replace(".mcap", ".json"));
+        ok(&objloc(&[
             os("train"),
-            train.as_os_str(),
+            rec(train).as_os_str(),
             os("-o"),
             model.as_os_str(),
-            os("--context-tiles"),
-            os(ctx),
+            os("--no-rerun"),
         ]));
-        if ctx == "2" {
-            assert!(text.contains("within 2 tiles around"), "{text}");
-            let m: serde_json::Value =
-                serde_json::from_slice(&std::fs::read(&model).unwrap()).unwrap();
-            assert_eq!(m["context_tiles"], 2);
-            assert_eq!(m["tree"]["n_features"], 512);
+        for tour in tours {
+            let text = ok(&objloc(&[
+                os("predict"),
+                rec(tour).as_os_str(),
+                os("--model"),
+                model.as_os_str(),
+                os("--out"),
+                dir.path().join(tour).as_os_str(),
+                os("--no-rerun"),
+            ]));
+            aucs.push((*tour, printed_tile_head_auc(&text), printed_auc(&text)));
         }
-        aucs.push(tour_auc(&tour, &model, &dir.path().join(ctx)));
     }
-    // Measured 0.900 and 0.967.
-    assert!(aucs[0] < 0.92 && aucs[1] > 0.95, "{aucs:?}");
+    // Measured (tile head, region head): chair 0.900, 0.982; two chairs 0.900, 0.960; drift
+    // 0.874, 0.971; bottle 0.999, 0.9995.
+    for &(tour, tile, region) in &aucs {
+        assert!(region >= 0.95, "{tour}: {aucs:?}");
+        if tour != "bottle-tour.mcap" {
+            assert!(tile < 0.92, "{tour}: {aucs:?}");
+        }
+    }
 }
 
 /// A session path for option checks that fail before any session is read.

@@ -360,13 +360,18 @@ fn train_recording_has_the_tree_graph_and_frames() {
         v["/train/frame/labels"]["frame"].as_array().unwrap().len(),
         21
     );
-    assert_eq!(
-        v["/train/frame/probability"]["frame"]
-            .as_array()
-            .unwrap()
-            .len(),
-        21
-    );
+    // Default models have a region head: its maps beside the tile head's.
+    for entity in [
+        "/train/frame/probability",
+        "/train/frame/region_probability",
+    ] {
+        assert_eq!(v[entity]["frame"].as_array().unwrap().len(), 21, "{entity}");
+        let cols = columns(&v, entity);
+        assert!(
+            cols.iter().any(|c| c == "DepthImage:buffer"),
+            "{entity}: {cols:?}"
+        );
+    }
 }
 
 /// Cost of streaming: replay of the chair tour with and without the Rerun observer

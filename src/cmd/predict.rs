@@ -1,6 +1,7 @@
 //! `objloc predict SESSION --model MODEL.json --out DIR [--heatmaps]`: per-frame tile
-//! probability maps as probs.npy / stamps.npy, optional heat maps, and tile ROC AUC against
-//! the session's labels when it has any.
+//! probability maps as probs.npy (the region head's, when the model has one) and tile_probs.npy
+//! (the tile head's: what `fuse` integrates), labels.npy / stamps.npy, optional heat maps, and
+//! tile ROC AUC against the session's labels when it has any.
 
 use std::path::PathBuf;
 
@@ -74,17 +75,31 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         pred.maps.len(),
         args.out.display()
     );
-    match &pred.labelled {
-        Some(m) => {
-            let auc = m
-                .roc_auc
-                .map_or_else(|| "n/a (one class only)".to_owned(), |a| format!("{a:.4}"));
-            println!(
-                "labelled frames {}: {} tiles, {} positive; tile ROC AUC {auc}, log-loss {:.5}, accuracy {:.5}",
-                pred.labelled_frames, m.n, m.positives, m.log_loss, m.accuracy
-            );
-        }
-        None => println!("no labelled frames: no tile AUC"),
+    let (Some(m), Some(tile)) = (&pred.labelled, &pred.tile_labelled) else {
+        println!("no labelled frames: no tile AUC");
+        return Ok(());
+    };
+    let auc = |m: &objloc::tree::Metrics| {
+        m.roc_auc
+            .map_or_else(|| "n/a (one class only)".to_owned(), |a| format!("{a:.4}"))
+    };
+    // The tile head's line first, so that the last line is always probs.npy's score.
+    if model.region.is_some() {
+        println!(
+            "tile head (tile_probs.npy, the fuser's evidence): tile ROC AUC {}, log-loss {:.5}, accuracy {:.5}",
+            auc(tile),
+            tile.log_loss,
+            tile.accuracy
+        );
     }
+    println!(
+        "labelled frames {}: {} tiles, {} positive; tile ROC AUC {}, log-loss {:.5}, accuracy {:.5}",
+        pred.labelled_frames,
+        m.n,
+        m.positives,
+        auc(m),
+        m.log_loss,
+        m.accuracy
+    );
     Ok(())
 }

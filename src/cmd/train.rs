@@ -7,7 +7,7 @@ use std::time::Instant;
 use anyhow::Context;
 use objloc::dataset::{export_features, load_session};
 use objloc::features::FeatureKind;
-use objloc::model::{TrainConfig, examples, fit_model};
+use objloc::model::{RegionConfig, TrainConfig, examples, fit_model};
 use objloc::tree::TreeParams;
 
 use super::TopicArgs;
@@ -57,7 +57,19 @@ pub struct Args {
     /// rate: bounds the evidence one tile can give against the object (0: none).
     #[arg(long = "base-mix", default_value_t = TreeParams::default().base_mix)]
     base_mix: f64,
-    /// Also write the examples as X.npy, y.npy, split.npy into this directory.
+    /// Colour quantisation of the region head (the tree `predict` answers with).
+    #[arg(long = "region-features", value_enum, default_value = "hsv")]
+    region_features: FeatureKind,
+    /// Neighbourhood radius in tiles of the region head's features (1..=4).
+    #[arg(long = "region-context-tiles", default_value_t = RegionConfig::default().context_tiles)]
+    region_context_tiles: u32,
+    /// Shifted-grid stride in pixels of the region head's training tiles.
+    #[arg(long = "region-stride", default_value_t = RegionConfig::default().train_stride_px)]
+    region_stride_px: u32,
+    /// Train the tile head only: `predict` then writes its maps (the model of objloc < 0.2).
+    #[arg(long = "no-region")]
+    no_region: bool,
+    /// Also write the tile head's examples as X.npy, y.npy, split.npy into this directory.
     #[arg(long = "export-features", value_name = "DIR")]
     export_features: Option<PathBuf>,
     #[command(flatten)]
@@ -82,6 +94,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             base_mix: args.base_mix,
             ..TreeParams::default()
         },
+        region: (!args.no_region).then_some(RegionConfig {
+            features: args.region_features,
+            context_tiles: args.region_context_tiles,
+            train_stride_px: args.region_stride_px,
+        }),
     };
     anyhow::ensure!(
         cfg.tree.m_estimate.is_finite() && cfg.tree.m_estimate > 0.0,
@@ -94,6 +111,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         cfg.context_tiles,
         objloc::model::MAX_CONTEXT_TILES
     );
+    if let Some(r) = &cfg.region {
+        anyhow::ensure!(
+            (1..=objloc::model::MAX_CONTEXT_TILES).contains(&r.context_tiles),
+            "--region-context-tiles {} must be in 1..={}",
+            r.context_tiles,
+            objloc::model::MAX_CONTEXT_TILES
+        );
+    }
     anyhow::ensure!(
         cfg.tree.prune_pseudo.is_finite() && cfg.tree.prune_pseudo >= 0.0,
         "--prune-pseudo {} must be a number >= 0",
@@ -114,10 +139,21 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let t_load = t0.elapsed();
     let t1 = Instant::now();
     let set = examples(&sessions, &cfg).context("train: building examples")?;
-    let t_features = t1.elapsed();
+    let mut t_features = t1.elapsed();
     let t2 = Instant::now();
-    let model = fit_model(&sessions, &set, &cfg).context("train: fitting the tree")?;
-    let t_fit = t2.elapsed();
+    let mut model = fit_model(&sessions, &set, &cfg).context("train: fitting the tree")?;
+    let mut t_fit = t2.elapsed();
+    if let Some(region_cfg) = cfg.region_config() {
+        let t3 = Instant::now();
+        let region_set = examples(&sessions, &region_cfg)
+            .context("train: building the region head's examples")?;
+        t_features += t3.elapsed();
+        let t4 = Instant::now();
+        let region = fit_model(&sessions, &region_set, &region_cfg)
+            .context("train: fitting the region head")?;
+        t_fit += t4.elapsed();
+        model.region = Some(Box::new(region));
+    }
     model
         .save(&args.output)
         .context("train: writing the model")?;
@@ -151,10 +187,15 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         );
     }
     println!(
-        "time: load+decode {:.3} s, features {:.3} s, fit time {:.4} s",
+        "time: load+decode {:.3} s, features {:.3} s, fit time {:.4} s{}",
         t_load.as_secs_f64(),
         t_features.as_secs_f64(),
-        t_fit.as_secs_f64()
+        t_fit.as_secs_f64(),
+        if model.region.is_some() {
+            " (both heads)"
+        } else {
+            ""
+        }
     );
     println!("model written to {}", args.output.display());
     Ok(())

@@ -290,7 +290,7 @@ pub fn centroid_error_m(objects: &[Object], data: &SessionData) -> Option<f64> {
         .min_by(f64::total_cmp)
 }
 
-fn depth_image(p: Vec<f32>, width: u32, height: u32) -> rerun::DepthImage {
+pub(crate) fn depth_image(p: Vec<f32>, width: u32, height: u32) -> rerun::DepthImage {
     let bytes: Vec<u8> = p.iter().flat_map(|v| v.to_le_bytes()).collect();
     rerun::DepthImage::from_data_type_and_bytes(bytes, [width, height], rerun::ChannelDatatype::F32)
         .with_meter(1.0)

@@ -435,10 +435,17 @@ pub fn train_blueprint() -> rerun::blueprint::Blueprint {
                 .with_origin("/train/frame")
                 .with_contents(["$origin/image", "$origin/labels", "$origin/overlay"])
                 .into(),
-            Spatial2DView::new("tile probabilities (hover)")
-                .with_origin("/train/frame")
-                .with_contents(["$origin/probability"])
-                .into(),
+            Horizontal::new([
+                Spatial2DView::new("tile head: the fuser's evidence (hover)")
+                    .with_origin("/train/frame")
+                    .with_contents(["$origin/probability"])
+                    .into(),
+                Spatial2DView::new("region head: predict's maps (hover)")
+                    .with_origin("/train/frame")
+                    .with_contents(["$origin/region_probability"])
+                    .into(),
+            ])
+            .into(),
         ])
         .into(),
     ]))

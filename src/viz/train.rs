@@ -1,6 +1,7 @@
 //! Training in Rerun: the decision tree as a graph (split feature and threshold at inner
 //! nodes, probability and counts at leaves) and the labelled training frames with their
-//! rectangles and predicted tile probabilities.
+//! rectangles and predicted tile probabilities: the tile head's (the fuser's evidence) and,
+//! when the model has one, the region head's (`predict`'s probs.npy).
 //!
 //! Invariants: nodes are logged in index order with ids `n<index>`; frames on the `frame`
 //! timeline in session order (sessions in command-line order) and on `log_time` with their
@@ -8,7 +9,7 @@
 
 use rerun::RecordingStream;
 
-use super::fuse::log_frame_and_probs;
+use super::fuse::{depth_image, log_frame_and_probs, upscale};
 use super::{TIMELINE_FRAME, TIMELINE_LOG_TIME, VizError, log_err, viridis};
 use crate::dataset::LoadedSession;
 use crate::model::Model;
@@ -97,14 +98,30 @@ pub fn log_training_frames(
             );
             rec.set_time_sequence(TIMELINE_FRAME, index);
             index += 1;
-            let m = model.predict(&f.image);
-            let probs = TileProbs {
+            let probs = |m: crate::model::ProbMap| TileProbs {
                 rows: m.rows,
                 cols: m.cols,
                 tile_px: m.tile_px,
                 p: m.p,
             };
-            log_frame_and_probs(rec, "train/frame", &f.image, &probs)?;
+            log_frame_and_probs(
+                rec,
+                "train/frame",
+                &f.image,
+                &probs(model.predict(&f.image)),
+            )?;
+            if let Some(region) = &model.region {
+                let p = upscale(
+                    &probs(region.predict(&f.image)),
+                    f.image.width,
+                    f.image.height,
+                );
+                rec.log(
+                    "train/frame/region_probability",
+                    &depth_image(p, f.image.width, f.image.height),
+                )
+                .map_err(log_err)?;
+            }
             rec.log(
                 "train/frame/labels",
                 &rerun::Boxes2D::from_mins_and_sizes(

@@ -1,14 +1,14 @@
 """An independent implementation of objloc's per-frame update (paper section 3.1), in NumPy.
 
 Reads the session's /odom, /tf_static and /camera/camera_info with the Python mcap +
-mcap-ros2-support readers (not objloc), the tile probability maps that `objloc predict`
-wrote, and the grid's spec from the fuse report. For every frame, every cell whose centre
+mcap-ros2-support readers (not objloc), the tile head's probability maps that `objloc predict`
+wrote (tile_probs.npy: what the fuser integrates), and the grid's spec from the fuse report. For every frame, every cell whose centre
 lies in front of the camera and projects into a tile gets log-odds += logit(p) -
 logit(prior). No motion blur (the fuse must run with both sigmas 0). Compares the posterior
 with objloc's --grid and prints JSON: cells, cells that differ, largest difference, cells the
 frames updated.
 
-usage: independent_update.py SESSION PROBS.npy STAMPS.npy REPORT.json GRID.npy
+usage: independent_update.py SESSION TILE_PROBS.npy STAMPS.npy REPORT.json GRID.npy
 """
 import json
 import sys
