@@ -6,8 +6,9 @@
 //! Invariants: a model that loads has version [`MODEL_VERSION`], a feature kind whose bin
 //! count equals the tree's feature count, a tile size in [`TILE_PX_RANGE`], a base rate
 //! strictly inside (0, 1) and a tree that passes [`Tree::validate`], so `predict` cannot
-//! panic on it; the same holds for the region head, whose tile size is the model's. Saving goes through `write_atomic`; the JSON holds no clock value, so the
-//! same training inputs give the same bytes.
+//! panic on it; the same holds for the region head, whose tile size is the model's. Saving
+//! goes through `write_atomic`; the JSON holds no clock value, so the same training inputs
+//! give the same bytes.
 
 use std::path::{Path, PathBuf};
 

@@ -21,7 +21,7 @@ pub struct Args {
     /// Output directory (created if missing).
     #[arg(long)]
     out: PathBuf,
-    /// Also write a PNG heat map per frame.
+    /// Also write a PNG heat map per frame (of probs.npy's maps).
     #[arg(long)]
     heatmaps: bool,
     /// Score only against labels naming this object (default: the model's object, if any).
