@@ -17,6 +17,8 @@
 use std::cmp::Ordering;
 use std::collections::BinaryHeap;
 
+use rayon::prelude::*;
+
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
@@ -369,20 +371,28 @@ struct Work {
     best: Option<Candidate>,
 }
 
-/// Scratch histograms for the split search, reused across nodes.
+/// Scratch histograms for the split search, reused across nodes: one set per worker.
 struct SplitSearch {
     width: usize,
+    parts: Vec<Scratch>,
+}
+
+/// (feature, count) histograms of examples and positives, and per-feature non-zero counts.
+struct Scratch {
     hist_n: Vec<u32>,
     hist_pos: Vec<u32>,
     nnz: Vec<u32>,
     nnz_pos: Vec<u32>,
 }
 
-impl SplitSearch {
-    fn new(n_features: usize, denom: u16) -> Self {
-        let width = denom as usize + 1;
+/// Nodes with at least this many training examples are searched by every worker: the root
+/// of the region head's 300 k examples took most of a single-threaded fit. Below it the
+/// split into chunks costs more than it saves.
+const PARALLEL_MIN_EXAMPLES: usize = 16_384;
+
+impl Scratch {
+    fn new(n_features: usize, width: usize) -> Self {
         Self {
-            width,
             hist_n: vec![0; n_features * width],
             hist_pos: vec![0; n_features * width],
             nnz: vec![0; n_features],
@@ -390,15 +400,7 @@ impl SplitSearch {
         }
     }
 
-    /// Best split of the node holding training examples `idx`: every threshold between
-    /// neighbouring distinct values is scored. Counts are small integers, so a per-node
-    /// histogram over (feature, count) replaces sorting; only non-zero entries are touched
-    /// (zeros are implied by n - nnz), which is what makes sparse histograms cheap.
-    fn best(&mut self, ex: &Examples, idx: &[u32], n: u32, pos: u32) -> Option<Candidate> {
-        if n < 2 || pos == 0 || pos == n {
-            return None;
-        }
-        let w = self.width;
+    fn add_examples(&mut self, ex: &Examples, idx: &[u32], w: usize) {
         for &i in idx {
             let y = ex.labels[i as usize] as u32;
             for &(f, c) in ex.sparse(i as usize) {
@@ -409,11 +411,57 @@ impl SplitSearch {
                 self.nnz_pos[f as usize] += y;
             }
         }
+    }
+
+    /// Zeroes what `idx` touched (cheap for small nodes).
+    fn reset_touched(&mut self, ex: &Examples, idx: &[u32], w: usize) {
+        for &i in idx {
+            for &(f, c) in ex.sparse(i as usize) {
+                let k = f as usize * w + c as usize;
+                self.hist_n[k] = 0;
+                self.hist_pos[k] = 0;
+                self.nnz[f as usize] = 0;
+                self.nnz_pos[f as usize] = 0;
+            }
+        }
+    }
+
+    /// Adds `other` into `self` and zeroes `other` (whole arrays: for large nodes).
+    fn absorb(&mut self, other: &mut Scratch) {
+        for (a, b) in [
+            (&mut self.hist_n, &mut other.hist_n),
+            (&mut self.hist_pos, &mut other.hist_pos),
+            (&mut self.nnz, &mut other.nnz),
+            (&mut self.nnz_pos, &mut other.nnz_pos),
+        ] {
+            for (x, y) in a.iter_mut().zip(b.iter_mut()) {
+                *x += *y;
+                *y = 0;
+            }
+        }
+    }
+
+    fn clear(&mut self) {
+        self.hist_n.fill(0);
+        self.hist_pos.fill(0);
+        self.nnz.fill(0);
+        self.nnz_pos.fill(0);
+    }
+
+    /// The first best split among `features`, in (feature, threshold) order: a later
+    /// candidate replaces it only with a strictly larger gain.
+    fn scan(
+        &self,
+        features: std::ops::Range<usize>,
+        w: usize,
+        n: u32,
+        pos: u32,
+    ) -> Option<Candidate> {
         let parent = n_entropy(n, pos);
         let mut best: Option<Candidate> = None;
         // Gains below this are rounding noise of the n ln n sums, not information.
         let min_gain = 1e-9 * (n as f64).max(1.0);
-        for f in 0..self.nnz.len() {
+        for f in features {
             let nnz = self.nnz[f];
             if nnz == 0 {
                 continue;
@@ -443,17 +491,79 @@ impl SplitSearch {
                 prev = c as u16;
             }
         }
-        // Reset only what was touched.
-        for &i in idx {
-            for &(f, c) in ex.sparse(i as usize) {
-                let k = f as usize * w + c as usize;
-                self.hist_n[k] = 0;
-                self.hist_pos[k] = 0;
-                self.nnz[f as usize] = 0;
-                self.nnz_pos[f as usize] = 0;
-            }
-        }
         best
+    }
+}
+
+impl SplitSearch {
+    fn new(n_features: usize, denom: u16) -> Self {
+        let width = denom as usize + 1;
+        // Large tiles make every histogram large (256 features x 65 026 counts for 255 px
+        // tiles): one set then, as summing and clearing whole sets would cost more than the
+        // chunks save.
+        let workers = if n_features * width <= 1 << 22 {
+            rayon::current_num_threads().clamp(1, 8)
+        } else {
+            1
+        };
+        Self {
+            width,
+            parts: (0..workers)
+                .map(|_| Scratch::new(n_features, width))
+                .collect(),
+        }
+    }
+
+    /// Best split of the node holding training examples `idx`: every threshold between
+    /// neighbouring distinct values is scored. Counts are small integers, so a per-node
+    /// histogram over (feature, count) replaces sorting; only non-zero entries are touched
+    /// (zeros are implied by n - nnz), which is what makes sparse histograms cheap.
+    ///
+    /// A large node is split among the workers: each builds the histograms of a chunk of
+    /// examples, they are summed (integers: the same for any split), and each scans a range
+    /// of features; the ranges' winners are taken in feature order with the same strict
+    /// comparison as one scan, so the result is the same for any thread count.
+    fn best(&mut self, ex: &Examples, idx: &[u32], n: u32, pos: u32) -> Option<Candidate> {
+        if n < 2 || pos == 0 || pos == n {
+            return None;
+        }
+        let w = self.width;
+        let workers = if idx.len() >= PARALLEL_MIN_EXAMPLES {
+            self.parts.len()
+        } else {
+            1
+        };
+        if workers == 1 {
+            let s = &mut self.parts[0];
+            s.add_examples(ex, idx, w);
+            let best = s.scan(0..s.nnz.len(), w, n, pos);
+            s.reset_touched(ex, idx, w);
+            return best;
+        }
+        let chunk = idx.len().div_ceil(workers);
+        self.parts[..workers]
+            .par_iter_mut()
+            .zip(idx.par_chunks(chunk))
+            .for_each(|(s, part)| s.add_examples(ex, part, w));
+        let (first, rest) = self.parts.split_at_mut(1);
+        for other in &mut rest[..workers - 1] {
+            first[0].absorb(other);
+        }
+        let s = &first[0];
+        let n_features = s.nnz.len();
+        let per = n_features.div_ceil(workers);
+        let winners: Vec<Option<Candidate>> = (0..workers)
+            .into_par_iter()
+            .map(|k| s.scan(k * per..((k + 1) * per).min(n_features), w, n, pos))
+            .collect();
+        first[0].clear();
+        winners.into_iter().flatten().fold(None, |best, c| {
+            if best.is_none_or(|b: Candidate| c.gain > b.gain) {
+                Some(c)
+            } else {
+                best
+            }
+        })
     }
 }
 
@@ -917,6 +1027,53 @@ mod tests {
         assert_eq!(tree.predict_counts(&[1, 3], 4.0), left.p);
         assert_eq!(tree.predict_counts(&[3, 1], 4.0), right.p);
         tree.validate().unwrap();
+    }
+
+    /// A node large enough to be searched in chunks gives the same tree for any thread
+    /// count, and a tie between two features in different workers' ranges still goes to the
+    /// lower feature, as in one sequential scan.
+    #[test]
+    fn chunked_search_gives_the_same_tree_for_any_thread_count() {
+        let n_features = 40;
+        let mut ex = Examples::new(n_features, 16);
+        let mut state = 0x2545_F491_4F6C_DD1Du64;
+        let mut next = || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            state
+        };
+        for i in 0..(3 * PARALLEL_MIN_EXAMPLES) {
+            let label = next() % 10 == 0;
+            let mut counts = vec![0u16; n_features];
+            for c in counts.iter_mut() {
+                *c = (next() % 17) as u16;
+            }
+            // Features 5 and 35 (in different ranges for 2, 3 and 4 workers) carry the same
+            // signal: identical gains.
+            let signal = if label {
+                12 + (next() % 5) as u16
+            } else {
+                (next() % 14) as u16
+            };
+            counts[5] = signal;
+            counts[35] = signal;
+            let third = [Third::Train, Third::Test, Third::Prune][i % 3];
+            ex.push_dense(&counts, label, third);
+        }
+        let fit_with = |threads: usize| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap()
+                .install(|| fit(&ex, &TreeParams::default()).unwrap().0)
+        };
+        let one = fit_with(1);
+        assert_eq!(one.nodes[0].split.as_ref().unwrap().feature, 5);
+        assert!(one.nodes.len() > 3, "{} nodes", one.nodes.len());
+        for threads in [2, 3, 4] {
+            assert_eq!(fit_with(threads), one, "{threads} threads");
+        }
     }
 
     #[test]
