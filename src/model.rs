@@ -259,12 +259,6 @@ impl Model {
         Ok(())
     }
 
-    /// The head whose maps `predict` writes as `probs.npy`: the region head when there is
-    /// one, else the tile head.
-    pub fn region_head(&self) -> &Model {
-        self.region.as_deref().unwrap_or(self)
-    }
-
     pub fn save(&self, path: &Path) -> Result<(), ModelError> {
         let mut text = serde_json::to_string_pretty(self).map_err(|source| ModelError::Json {
             path: path.to_owned(),
@@ -324,17 +318,18 @@ impl Model {
         let mut s = String::from(
             "tile head (the tile's own colours: the fuser's evidence, tile_probs.npy)\n",
         );
-        s.push_str(&self.head_table());
+        s.push_str(&self.head_table(true));
         if let Some(region) = &self.region {
             s.push_str(
                 "\nregion head (the tile and its neighbourhood: inside the labelled rectangle? predict's probs.npy)\n",
             );
-            s.push_str(&region.head_table());
+            s.push_str(&region.head_table(false));
         }
         s
     }
 
-    fn head_table(&self) -> String {
+    /// One head's table; `fuser_head`: this head's base rate is the fuser's prior.
+    fn head_table(&self, fuser_head: bool) -> String {
         use std::fmt::Write;
         let m = &self.metadata;
         let e = &m.examples;
@@ -407,7 +402,7 @@ impl Model {
                 t.accuracy, t.log_loss
             );
         }
-        if self.region.is_some() || self.context_tiles == 0 {
+        if fuser_head {
             let _ = writeln!(s, "base rate (fuser prior) {:.6}", self.base_rate);
         }
         let _ = writeln!(s, "top splits:");
@@ -447,7 +442,7 @@ impl Model {
 #[derive(Debug, Clone)]
 pub struct SessionPrediction {
     pub stamps_ns: Vec<i64>,
-    /// The region head's maps ([`Model::region_head`]): `probs.npy`.
+    /// The region head's maps ([`Model::region`]; the tile head's without one): `probs.npy`.
     pub maps: Vec<ProbMap>,
     /// The tile head's maps, what the fuser integrates: `tile_probs.npy` (the same as `maps`
     /// for a model without a region head).
@@ -526,7 +521,8 @@ impl Model {
 impl SessionPrediction {
     /// Writes `probs.npy` (float32 frames x rows x cols: the region head's maps),
     /// `tile_probs.npy` (the tile head's, the fuser's evidence), `labels.npy` (int8, same
-    /// shape) and `stamps.npy` (int64 ns) into `dir`, and with `heatmaps` a `heatmap_NNNNN.png` per frame.
+    /// shape) and `stamps.npy` (int64 ns) into `dir`, and with `heatmaps` a
+    /// `heatmap_NNNNN.png` per frame.
     pub fn write(
         &self,
         dir: &Path,

@@ -337,6 +337,16 @@ fn bad_inputs_fail_with_one_line_and_no_output() {
     // Tree and feature options out of range, refused before any work.
     for (flag, value, expect) in [
         ("--context-tiles", "9", "--context-tiles 9 is over 4"),
+        (
+            "--region-context-tiles",
+            "0",
+            "--region-context-tiles 0 must be in 1..=4",
+        ),
+        (
+            "--region-stride",
+            "9",
+            "--region-stride 9 px must be 1 to the tile size 8 px",
+        ),
         ("--base-mix", "1.5", "--base-mix 1.5 must be in [0, 1)"),
         (
             "--m-estimate",

@@ -66,7 +66,7 @@ pub struct Args {
     /// Shifted-grid stride in pixels of the region head's training tiles.
     #[arg(long = "region-stride", default_value_t = RegionConfig::default().train_stride_px)]
     region_stride_px: u32,
-    /// Train the tile head only: `predict` then writes its maps (the model of objloc < 0.2).
+    /// Train the tile head only (as model version 1 did): `predict` then writes its maps.
     #[arg(long = "no-region")]
     no_region: bool,
     /// Also write the tile head's examples as X.npy, y.npy, split.npy into this directory.
@@ -117,6 +117,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             "--region-context-tiles {} must be in 1..={}",
             r.context_tiles,
             objloc::model::MAX_CONTEXT_TILES
+        );
+        // Checked here too, so a bad value fails before the tile head is trained.
+        anyhow::ensure!(
+            (1..=cfg.tile_px).contains(&r.train_stride_px),
+            "--region-stride {} px must be 1 to the tile size {} px",
+            r.train_stride_px,
+            cfg.tile_px
         );
     }
     anyhow::ensure!(
