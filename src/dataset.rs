@@ -326,16 +326,8 @@ impl SparseTiles {
     fn from_dense(counts: &[u16], bins: usize) -> Self {
         let mut entries = Vec::new();
         let mut ends = Vec::with_capacity(counts.len() / bins.max(1));
-        // Branch-free compaction: every entry is written, the cursor moves on only past a
-        // non-zero count (the counts are zero or not at random, so a branch mispredicts).
-        let mut buf = vec![(0u16, 0u16); bins];
         for tile in counts.chunks_exact(bins) {
-            let mut k = 0;
-            for (f, &c) in tile.iter().enumerate() {
-                buf[k] = (f as u16, c);
-                k += usize::from(c > 0);
-            }
-            entries.extend_from_slice(&buf[..k]);
+            crate::tree::push_nonzero(tile, &mut entries);
             ends.push(entries.len());
         }
         Self { entries, ends }

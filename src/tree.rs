@@ -44,6 +44,21 @@ pub struct Examples {
     pub thirds: Vec<Third>,
 }
 
+/// Appends the non-zero (feature, count) entries of dense `counts` to `out`, in feature
+/// order. Branch-free: every entry is written and the cursor moves on only past a non-zero
+/// count, since whether a bin is zero is close to random and a branch mispredicts (this was
+/// a tenth of training).
+pub fn push_nonzero(counts: &[u16], out: &mut Vec<(u16, u16)>) {
+    let start = out.len();
+    out.resize(start + counts.len(), (0, 0));
+    let mut k = start;
+    for (f, &c) in counts.iter().enumerate() {
+        out[k] = (f as u16, c);
+        k += usize::from(c > 0);
+    }
+    out.truncate(k);
+}
+
 impl Examples {
     pub fn new(n_features: usize, denom: u16) -> Self {
         Self {
@@ -64,11 +79,7 @@ impl Examples {
 
     /// Adds one example from its dense counts.
     pub fn push_dense(&mut self, counts: &[u16], label: bool, third: Third) {
-        for (f, &c) in counts.iter().enumerate() {
-            if c > 0 {
-                self.entries.push((f as u16, c));
-            }
-        }
+        push_nonzero(counts, &mut self.entries);
         self.offsets.push(self.entries.len() as u32);
         self.labels.push(label);
         self.thirds.push(third);
