@@ -18,45 +18,155 @@ use crate::report::Report;
 /// if larger) cannot be that box.
 pub const MATCH_GATE_M: f64 = 0.5;
 
+/// One true box of a GroundTruth message.
 #[derive(Debug, Clone, PartialEq)]
-pub struct TrueObject {
-    pub name: String,
+pub struct TrueBox {
     pub odom_from_box: Iso3,
     /// Full edge lengths, metres.
     pub size_m: [f64; 3],
 }
 
-impl TrueObject {
-    pub fn center_m(&self) -> [f64; 3] {
-        let t = self.odom_from_box.translation.vector;
-        [t.x, t.y, t.z]
-    }
-
-    pub fn contains(&self, p: [f64; 3]) -> bool {
+impl TrueBox {
+    fn contains(&self, p: [f64; 3]) -> bool {
         let q = self.odom_from_box.inverse() * Point3::new(p[0], p[1], p[2]);
         (0..3).all(|a| q[a].abs() <= self.size_m[a] / 2.0)
     }
 
+    fn volume_m3(&self) -> f64 {
+        self.size_m.iter().product()
+    }
+
+    /// Axis-aligned bounds in `odom` of the box's eight corners.
+    fn aabb_m(&self) -> ([f64; 3], [f64; 3]) {
+        let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+        for corner in 0..8u8 {
+            let h = |a: usize| {
+                let s = if corner & (1 << a) == 0 { -0.5 } else { 0.5 };
+                s * self.size_m[a]
+            };
+            let q = self.odom_from_box * Point3::new(h(0), h(1), h(2));
+            for a in 0..3 {
+                lo[a] = lo[a].min(q[a]);
+                hi[a] = hi[a].max(q[a]);
+            }
+        }
+        (lo, hi)
+    }
+}
+
+/// One true object instance: the boxes of one name that touch each other (a kettle's body,
+/// spout and handle; a chair is one box). Its centre is the volume-weighted centroid of its
+/// boxes, which is a single box's centre.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TrueObject {
+    pub name: String,
+    pub boxes: Vec<TrueBox>,
+}
+
+impl TrueObject {
+    pub fn center_m(&self) -> [f64; 3] {
+        let total: f64 = self.boxes.iter().map(TrueBox::volume_m3).sum();
+        let mut c = [0.0; 3];
+        for b in &self.boxes {
+            let w = if total > 0.0 {
+                b.volume_m3() / total
+            } else {
+                1.0 / self.boxes.len() as f64
+            };
+            let t = b.odom_from_box.translation.vector;
+            for a in 0..3 {
+                c[a] += w * t[a];
+            }
+        }
+        c
+    }
+
+    pub fn contains(&self, p: [f64; 3]) -> bool {
+        self.boxes.iter().any(|b| b.contains(p))
+    }
+
+    /// Axis-aligned bounds in `odom` of all its boxes.
+    pub fn aabb_m(&self) -> ([f64; 3], [f64; 3]) {
+        let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+        for b in &self.boxes {
+            let (l, h) = b.aabb_m();
+            for a in 0..3 {
+                lo[a] = lo[a].min(l[a]);
+                hi[a] = hi[a].max(h[a]);
+            }
+        }
+        (lo, hi)
+    }
+
     fn gate_m(&self) -> f64 {
-        let d = self.size_m.iter().map(|s| s * s).sum::<f64>().sqrt() / 2.0;
+        let (lo, hi) = self.aabb_m();
+        let d = (0..3).map(|a| (hi[a] - lo[a]).powi(2)).sum::<f64>().sqrt() / 2.0;
         d.max(MATCH_GATE_M)
     }
 }
 
-/// The true boxes of a GroundTruth message (boxes with invalid poses are skipped).
+/// Boxes of one name closer than this (between their axis-aligned bounds) are parts of one
+/// instance.
+pub const PART_TOUCH_M: f64 = 0.01;
+
+/// The true object instances of a GroundTruth message: boxes with invalid poses are skipped;
+/// boxes of the same name whose bounds touch (within [`PART_TOUCH_M`]) are one instance.
+/// Instances are ordered by their first box.
 pub fn true_objects(gt: &GroundTruth) -> Vec<TrueObject> {
-    gt.object
+    let boxes: Vec<(String, TrueBox)> = gt
+        .object
         .iter()
         .zip(&gt.box_center)
         .zip(&gt.box_size)
         .filter_map(|((name, pose), size)| {
-            Some(TrueObject {
-                name: name.clone(),
-                odom_from_box: iso_from_pose(pose)?,
-                size_m: *size,
-            })
+            Some((
+                name.clone(),
+                TrueBox {
+                    odom_from_box: iso_from_pose(pose)?,
+                    size_m: *size,
+                },
+            ))
         })
-        .collect()
+        .collect();
+    // Union-find over touching boxes of one name; parents point to lower indices, so each
+    // group's root is its first box.
+    let mut parent: Vec<usize> = (0..boxes.len()).collect();
+    fn root(parent: &mut [usize], mut i: usize) -> usize {
+        while parent[i] != i {
+            parent[i] = parent[parent[i]];
+            i = parent[i];
+        }
+        i
+    }
+    let bounds: Vec<_> = boxes.iter().map(|(_, b)| b.aabb_m()).collect();
+    for i in 0..boxes.len() {
+        for j in 0..i {
+            let touch = (0..3).all(|a| {
+                bounds[i].0[a] <= bounds[j].1[a] + PART_TOUCH_M
+                    && bounds[j].0[a] <= bounds[i].1[a] + PART_TOUCH_M
+            });
+            if boxes[i].0 == boxes[j].0 && touch {
+                let (ri, rj) = (root(&mut parent, i), root(&mut parent, j));
+                let (lo, hi) = (ri.min(rj), ri.max(rj));
+                parent[hi] = lo;
+            }
+        }
+    }
+    let mut out: Vec<(usize, TrueObject)> = Vec::new();
+    for (i, (name, b)) in boxes.into_iter().enumerate() {
+        let r = root(&mut parent, i);
+        match out.iter_mut().find(|(k, _)| *k == r) {
+            Some((_, o)) => o.boxes.push(b),
+            None => out.push((
+                r,
+                TrueObject {
+                    name,
+                    boxes: vec![b],
+                },
+            )),
+        }
+    }
+    out.into_iter().map(|(_, o)| o).collect()
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -310,13 +420,17 @@ mod tests {
         let truth = vec![
             TrueObject {
                 name: "chair".into(),
-                odom_from_box: b1,
-                size_m: [0.5, 0.5, 0.9],
+                boxes: vec![TrueBox {
+                    odom_from_box: b1,
+                    size_m: [0.5, 0.5, 0.9],
+                }],
             },
             TrueObject {
                 name: "chair".into(),
-                odom_from_box: b2,
-                size_m: [0.5, 0.5, 0.9],
+                boxes: vec![TrueBox {
+                    odom_from_box: b2,
+                    size_m: [0.5, 0.5, 0.9],
+                }],
             },
         ];
         let mut near_first = obj([0.03, 0.04, 0.45]);
@@ -337,6 +451,32 @@ mod tests {
         assert!(!truth[0].contains([0.0, 0.0, 0.95]));
     }
 
+    /// A kettle of two touching boxes (body 0.2 m cube at the origin, spout 0.1 x 0.05 x 0.05
+    /// beside it) and a second kettle far away: two instances; the first's centre is the
+    /// volume-weighted mean, (0.008 m^3 * 0 + 0.00025 m^3 * 0.15) / 0.00825 m^3 along x.
+    #[test]
+    fn touching_boxes_of_one_name_are_one_instance() {
+        use crate::msgs::{GroundTruth, Header, Pose};
+        let pose = |x: f64, y: f64| Pose {
+            position: [x, y, 0.5],
+            orientation_xyzw: [0.0, 0.0, 0.0, 1.0],
+        };
+        let gt = GroundTruth {
+            header: Header::default(),
+            object: vec!["kettle".into(), "kettle".into(), "kettle".into()],
+            box_center: vec![pose(0.0, 0.0), pose(0.15, 0.0), pose(2.0, 1.0)],
+            box_size: vec![[0.2, 0.2, 0.2], [0.1, 0.05, 0.05], [0.2, 0.2, 0.2]],
+        };
+        let t = true_objects(&gt);
+        assert_eq!(t.len(), 2);
+        assert_eq!(t[0].boxes.len(), 2);
+        let c = t[0].center_m();
+        assert!((c[0] - 0.00025 * 0.15 / 0.00825).abs() < 1e-12, "{c:?}");
+        assert!(c[1].abs() < 1e-12 && (c[2] - 0.5).abs() < 1e-12);
+        assert_eq!(t[1].center_m(), [2.0, 1.0, 0.5]);
+        assert!(t[0].contains([0.18, 0.0, 0.5]) && !t[0].contains([0.18, 0.1, 0.5]));
+    }
+
     #[test]
     fn iou_of_exact_and_half_estimates() {
         let spec = GridSpec::from_bounds([0.0; 3], [1.0; 3], 0.1).unwrap();
@@ -345,8 +485,10 @@ mod tests {
         // Box of 0.4 m: cells 3..7 on each axis (centres 0.35..0.65) = 64 cells.
         let truth = vec![TrueObject {
             name: "x".into(),
-            odom_from_box: b,
-            size_m: [0.4, 0.4, 0.4],
+            boxes: vec![TrueBox {
+                odom_from_box: b,
+                size_m: [0.4, 0.4, 0.4],
+            }],
         }];
         let inside: Vec<usize> = (0..spec.cells())
             .filter(|&i| {
@@ -401,6 +543,7 @@ mod tests {
                 // No true pose within 50 ms: not counted.
                 frame(2, 2_900_000_000, [9.0, 9.0, 0.0], [9.0, 9.0, 0.0]),
             ],
+            refinement: None,
             warnings: Vec::new(),
             timing_ms: Default::default(),
         };

@@ -139,6 +139,25 @@ pub fn floor_patch(
     patch
 }
 
+/// [`FloorMap::disagreement`] of the floor `patches` seen at their poses.
+pub fn disagreement(patches: &[(&FloorPatch, &Iso3)], params: FloorParams) -> f64 {
+    let reach = params.max_range_m + 1.0;
+    let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+    for (_, pose) in patches {
+        let t = pose.translation.vector;
+        lo = [lo[0].min(t.x - reach), lo[1].min(t.y - reach)];
+        hi = [hi[0].max(t.x + reach), hi[1].max(t.y + reach)];
+    }
+    if !lo[0].is_finite() {
+        return 0.0;
+    }
+    let mut map = FloorMap::new(lo, hi, params);
+    for (patch, pose) in patches {
+        map.add(patch, pose);
+    }
+    map.disagreement()
+}
+
 /// Moves a `base_link` floor point into `odom` by a planar robot pose.
 #[inline]
 fn to_odom(odom_from_base: &Iso3, p: &[f64; 2]) -> [f64; 2] {
@@ -161,6 +180,8 @@ pub struct FloorMap {
     /// all zeros where the cell has not been seen, so that a bilinear lookup adds nothing
     /// for it (no weight, no value) without a branch.
     stats: Vec<[f64; 5]>,
+    /// Per cell: frames that saw it, and the last frame (1-based) that did.
+    seen_by: Vec<(u16, u32)>,
     frames: usize,
 }
 
@@ -176,6 +197,7 @@ impl FloorMap {
             ny,
             acc: vec![[0.0; 7]; nx * ny],
             stats: vec![[0.0; 5]; nx * ny],
+            seen_by: vec![(0, 0); nx * ny],
             frames: 0,
         }
     }
@@ -214,6 +236,7 @@ impl FloorMap {
 
     /// Adds a frame's patch at its (final) robot pose.
     pub fn add(&mut self, patch: &FloorPatch, odom_from_base: &Iso3) {
+        let this = u32::try_from(self.frames + 1).unwrap_or(u32::MAX);
         for ((p, c), &n) in patch.points_m.iter().zip(&patch.colour).zip(&patch.pixels) {
             let Some((idx, w)) = self.corners(&to_odom(odom_from_base, p)) else {
                 continue;
@@ -230,13 +253,41 @@ impl FloorMap {
                     a[1 + ch] += ww * v;
                     a[4 + ch] += ww * v * v;
                 }
+                let sb = self.seen_by[i];
+                let views = if sb.1 != this {
+                    sb.0.saturating_add(1)
+                } else {
+                    sb.0
+                };
+                self.seen_by[i] = (views, this);
                 self.stats[i] = match self.cell(i) {
                     Some((m, var)) => [m[0], m[1], m[2], var, 1.0],
-                    None => [0.0; 5],
+                    _ => [0.0; 5],
                 };
             }
         }
         self.frames += 1;
+    }
+
+    /// How much the views disagree about the floor: over the cells two or more frames saw,
+    /// the weighted mean of the colour variance across them over the colour noise (each
+    /// cell's term capped like a residual). The floor seen at consistent poses has a low
+    /// one; misplaced frames raise it.
+    pub fn disagreement(&self) -> f64 {
+        let s0 = self.params.sigma_colour * self.params.sigma_colour;
+        let cap = self.params.truncate_sigmas * self.params.truncate_sigmas;
+        let (mut num, mut den) = (0.0, 0.0);
+        for (i, sb) in self.seen_by.iter().enumerate() {
+            if sb.0 < 2 {
+                continue;
+            }
+            if let Some((_, var)) = self.cell(i) {
+                let w = self.acc[i][0];
+                num += w * (var / s0).min(cap);
+                den += w;
+            }
+        }
+        if den > 0.0 { num / den } else { 0.0 }
     }
 
     /// Mean colour and variance (averaged over channels) of a cell, if observed.
@@ -269,6 +320,28 @@ impl FloorMap {
             }
         }
         (acc[4] >= 0.5).then_some(acc)
+    }
+
+    /// Of the patch's cells that land on floor the map has seen at a robot pose, the
+    /// fraction whose colour fits the map's within two sigmas; `None` when none land.
+    pub fn fit(&self, patch: &FloorPatch, odom_from_base: &Iso3) -> Option<f64> {
+        let s0 = self.params.sigma_colour * self.params.sigma_colour;
+        let (mut n, mut good) = (0usize, 0usize);
+        for (p, c) in patch.points_m.iter().zip(&patch.colour) {
+            let Some(acc) = self.lookup(&to_odom(odom_from_base, p)) else {
+                continue;
+            };
+            let k = 1.0 / acc[4];
+            let d2: f64 = (0..3)
+                .map(|ch| (f64::from(c[ch]) - acc[ch] * k).powi(2))
+                .sum::<f64>()
+                / 3.0;
+            n += 1;
+            if d2 / (s0 + acc[3] * k) <= 4.0 {
+                good += 1;
+            }
+        }
+        (n > 0).then(|| good as f64 / n as f64)
     }
 
     /// Cells of a patch at a robot pose that land on floor the map has seen.

@@ -24,8 +24,8 @@ use crate::motion::{BlurMode, Blurrer, Segment, segments_between};
 use crate::msgs::GroundTruth;
 use crate::objects::{Object, ObjectParams, find_objects, find_objects_with_cells};
 use crate::refine::{
-    Correction, DETECTION_DELTA, Sighting, detection_clusters, landmarks, motion_covariance,
-    refine, sightings,
+    Consistency, Correction, DETECTION_DELTA, MIN_FLOOR_FIT, Sighting, TotalGate, Verdict,
+    detection_clusters, landmarks, motion_covariance, propagate, refine, sightings,
 };
 use crate::session::{At, Rgb8, Role, SessionError, SessionMsg, SessionReader, fmt_ns};
 
@@ -422,6 +422,10 @@ pub trait Observer {
     ) -> anyhow::Result<()> {
         Ok(())
     }
+    /// The refined pass just seen is rolled back; the frames come again, fused at /odom.
+    fn on_rollback(&mut self, _data: &SessionData) -> anyhow::Result<()> {
+        Ok(())
+    }
 }
 
 /// The result of a replay.
@@ -436,6 +440,8 @@ pub struct Outcome {
     /// Per fused frame: stamp and objects after it.
     pub per_frame: Vec<FrameSummary>,
     pub warnings: Vec<String>,
+    /// The check of the refined poses against /odom, when refining.
+    pub refinement: Option<RefinementCheck>,
 }
 
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -573,9 +579,27 @@ struct Prepared {
     probs: TileProbs,
     /// The frame's floor, when refining with the floor.
     floor: FloorPatch,
+    /// Its detection clusters (pixels), when refining.
+    clusters: Vec<[f64; 2]>,
+}
+
+/// Everything a pass over the frames needs, read and classified once.
+struct Context<'a> {
+    reader: &'a SessionReader,
+    data: SessionData,
+    spec: GridSpec,
+    prior: f64,
+    prepared: Vec<Prepared>,
+    warnings: Vec<String>,
 }
 
 /// Replays `reader` with `classifier` into a grid, telling `observers` each step.
+///
+/// With pose refinement the replay is checked afterwards: when its poses explain the
+/// frames' detections worse than /odom's do ([`crate::refine::Consistency`]), it is rolled
+/// back: replayed at the /odom poses, the observers seeing the second pass after
+/// [`Observer::on_rollback`], and every frame it had corrected marked
+/// [`Verdict::RolledBack`].
 pub fn replay(
     reader: &SessionReader,
     classifier: &dyn FrameClassifier,
@@ -583,6 +607,80 @@ pub fn replay(
     observers: &mut [&mut dyn Observer],
 ) -> Result<Outcome, ReplayError> {
     let options = &options.normalised();
+    let ctx = prepare(reader, classifier, options)?;
+    for o in observers.iter_mut() {
+        o.on_start(
+            &ctx.data,
+            &Grid::new(ctx.spec, ctx.prior).map_err(|e| ctx.grid_err(e))?,
+        )
+        .map_err(|e| ctx.observer_err(None, &e))?;
+    }
+    let first = run_pass(&ctx, options, observers)?;
+    let mut refinement = None;
+    let last = if options.refine_poses {
+        let check = check_refinement(&ctx, &first);
+        let roll = check.rolled_back;
+        refinement = Some(check);
+        if roll {
+            for o in observers.iter_mut() {
+                o.on_rollback(&ctx.data)
+                    .map_err(|e| ctx.observer_err(None, &e))?;
+            }
+            let plain = FuseOptions {
+                refine_poses: false,
+                ..options.clone()
+            };
+            let mut second = run_pass(&ctx, &plain, observers)?;
+            for (s, f) in second.per_frame.iter_mut().zip(&first.per_frame) {
+                s.correction = f.correction.map(|c| match c.outcome {
+                    Verdict::Accepted => Correction {
+                        applied: false,
+                        outcome: Verdict::RolledBack,
+                        ..c
+                    },
+                    _ => c,
+                });
+            }
+            second
+        } else {
+            first
+        }
+    } else {
+        first
+    };
+    Ok(finish(ctx, last, refinement))
+}
+
+impl Context<'_> {
+    fn grid_err(&self, source: GridError) -> ReplayError {
+        ReplayError::Grid {
+            path: self.data.path.clone(),
+            source,
+        }
+    }
+
+    fn observer_err(&self, fr: Option<&FrameRef>, e: &anyhow::Error) -> ReplayError {
+        ReplayError::Invalid {
+            at: match fr {
+                Some(fr) => self.reader.at(Some(&fr.topic), fr.log_time_ns),
+                None => At {
+                    path: self.reader.path().to_owned(),
+                    topic: None,
+                    log_time_ns: None,
+                },
+            },
+            what: format!("observer failed: {e:#}"),
+        }
+    }
+}
+
+/// Reads the session, checks the options against it, and classifies every frame that can be
+/// fused (the floor patch and detection clusters too, when refining).
+fn prepare<'a>(
+    reader: &'a SessionReader,
+    classifier: &dyn FrameClassifier,
+    options: &FuseOptions,
+) -> Result<Context<'a>, ReplayError> {
     let mut data = load_session(reader)?;
     if options.poses == PoseSource::GroundTruth {
         if data.ground_truth_poses.is_empty() {
@@ -597,7 +695,7 @@ pub fn replay(
         }
         data.odom = data.ground_truth_poses.clone();
     }
-    let mut warnings = data.warnings.clone();
+    let warnings = data.warnings.clone();
     let (lo, hi) = match options.bounds_m {
         Some(b) => b,
         None => data
@@ -615,14 +713,37 @@ pub fn replay(
     let prior = options.prior.unwrap_or_else(|| classifier.base_rate());
     // Checked before the frames are read, so a bad option fails fast.
     Fuser::new(spec, prior, options.clone()).map_err(grid_err)?;
+    let mut ctx = Context {
+        reader,
+        data,
+        spec,
+        prior,
+        prepared: Vec::new(),
+        warnings,
+    };
+    classify_frames(&mut ctx, classifier, options)?;
+    if ctx.prepared.is_empty() {
+        return Err(ReplayError::NothingFused {
+            path: ctx.data.path.clone(),
+            frames: ctx.data.frames.len(),
+        });
+    }
+    Ok(ctx)
+}
 
+/// Every frame that can be fused, classified once; frames without a pose or going back in
+/// time are skipped with a warning.
+fn classify_frames(
+    ctx: &mut Context<'_>,
+    classifier: &dyn FrameClassifier,
+    options: &FuseOptions,
+) -> Result<(), ReplayError> {
+    let reader = ctx.reader;
     let floor_params = floor_params(options);
-    // Every frame that can be fused, classified once.
-    let mut prepared: Vec<Prepared> = Vec::new();
-    for fr in &data.frames {
+    for fr in &ctx.data.frames {
         let at = || reader.at(Some(&fr.topic), fr.log_time_ns);
-        let Some(odometry) = data.odom_at(fr.stamp_ns) else {
-            warnings.push(format!(
+        let Some(odometry) = ctx.data.odom_at(fr.stamp_ns) else {
+            ctx.warnings.push(format!(
                 "{}: no {} pose within 50 ms of stamp {}; frame skipped",
                 at(),
                 reader.topics().odom,
@@ -630,17 +751,18 @@ pub fn replay(
             ));
             continue;
         };
-        if prepared
+        if ctx
+            .prepared
             .last()
             .is_some_and(|p| fr.stamp_ns < p.frame.stamp_ns)
         {
-            warnings.push(format!(
+            ctx.warnings.push(format!(
                 "{}: frame stamp goes backwards; frame skipped",
                 at()
             ));
             continue;
         }
-        let image = decode_frame(reader, &data, fr)?;
+        let image = decode_frame(reader, &ctx.data, fr)?;
         let probs = classifier.classify(&image);
         let floor = match &floor_params {
             Some(fp) => {
@@ -649,171 +771,366 @@ pub fn replay(
                 // floor behind the object, which differs from every view (measured: the
                 // largest move of exact odometry falls from 0.060 to 0.048 m).
                 let t = probs.tile_px.max(1);
-                let min_logit = logit(prior) + f64::from(DETECTION_DELTA);
+                let min_logit = logit(ctx.prior) + f64::from(DETECTION_DELTA);
                 let not_floor = |u: u32, v: u32| {
                     let (r, c) = ((v / t) as usize, (u / t) as usize);
                     r < probs.rows
                         && c < probs.cols
                         && logit(f64::from(probs.p[r * probs.cols + c])) >= min_logit
                 };
-                floor_patch(&image, &data.camera, &data.base_from_camera, fp, not_floor)
+                floor_patch(
+                    &image,
+                    &ctx.data.camera,
+                    &ctx.data.base_from_camera,
+                    fp,
+                    not_floor,
+                )
             }
             None => FloorPatch::default(),
         };
-        prepared.push(Prepared {
+        let clusters = if options.refine_poses {
+            detection_clusters(&TileEvidence::from_probabilities(
+                probs.rows,
+                probs.cols,
+                probs.tile_px,
+                &probs.p,
+                ctx.prior,
+            ))
+        } else {
+            Vec::new()
+        };
+        ctx.prepared.push(Prepared {
             frame: fr.clone(),
             odometry,
             probs,
             floor,
+            clusters,
         });
     }
-    if prepared.is_empty() {
-        return Err(ReplayError::NothingFused {
-            path: data.path.clone(),
-            frames: data.frames.len(),
-        });
-    }
+    Ok(())
+}
 
-    // The replay proper, observed.
-    let mut fuser = Fuser::new(spec, prior, options.clone()).map_err(grid_err)?;
-    for o in observers.iter_mut() {
-        o.on_start(&data, &fuser.grid)
-            .map_err(|e| ReplayError::Invalid {
-                at: At {
-                    path: reader.path().to_owned(),
-                    topic: None,
-                    log_time_ns: None,
-                },
-                what: format!("observer failed: {e:#}"),
-            })?;
-    }
-    let mut per_frame = Vec::new();
-    // Poses the frames are fused with: odometry, or odometry corrected against the belief.
-    let mut poses: Vec<Iso3> = Vec::with_capacity(prepared.len());
-    // Rays through the detections of the frames fused so far, when refining.
-    let mut seen: Vec<Sighting> = Vec::new();
-    let mut floor_map = floor_params.map(|fp| {
+/// One pass over the prepared frames: its grid, the poses it fused with, the floor's state.
+struct Pass {
+    fuser: Fuser,
+    poses: Vec<Iso3>,
+    per_frame: Vec<FrameSummary>,
+    /// The frame from which the floor term was dropped (it no longer fit), if it was.
+    floor_dropped_at: Option<usize>,
+}
+
+/// What a pass carries from frame to frame when it refines poses.
+struct Tracker {
+    /// Rays through the detections of the frames fused so far.
+    seen: Vec<Sighting>,
+    floor_map: Option<FloorMap>,
+    /// Frames whose floor did not fit the map (see [`MAX_FLOOR_FAILURES`]).
+    floor_failures: usize,
+    /// Covariance of /odom's error since the first frame (the total correction's gate).
+    total_cov: nalgebra::Matrix3<f64>,
+}
+
+/// A replay stops using the floor once this many frames' floors did not fit the map at
+/// their best pose ([`crate::refine::MIN_FLOOR_FIT`]): the camera is then not looking at a
+/// floor but at furniture, a counter or a wall in front of it. One such frame alone is
+/// common on our own tours (a table in view, a frame close to the object); two were not seen
+/// on any of them (docs/fuser.md).
+pub const MAX_FLOOR_FAILURES: usize = 2;
+
+fn run_pass(
+    ctx: &Context<'_>,
+    options: &FuseOptions,
+    observers: &mut [&mut dyn Observer],
+) -> Result<Pass, ReplayError> {
+    let fuser = Fuser::new(ctx.spec, ctx.prior, options.clone()).map_err(|e| ctx.grid_err(e))?;
+    let floor_map = floor_params(options).map(|fp| {
         let reach = fp.max_range_m + 1.0;
         let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
-        for p in &prepared {
+        for p in &ctx.prepared {
             let t = p.odometry.translation.vector;
             lo = [lo[0].min(t.x - reach), lo[1].min(t.y - reach)];
             hi = [hi[0].max(t.x + reach), hi[1].max(t.y + reach)];
         }
         FloorMap::new(lo, hi, fp)
     });
-    for (index, p) in prepared.iter().enumerate() {
+    let mut pass = Pass {
+        fuser,
+        poses: Vec::with_capacity(ctx.prepared.len()),
+        per_frame: Vec::with_capacity(ctx.prepared.len()),
+        floor_dropped_at: None,
+    };
+    let mut tracker = Tracker {
+        seen: Vec::new(),
+        floor_map,
+        floor_failures: 0,
+        total_cov: nalgebra::Matrix3::zeros(),
+    };
+    for index in 0..ctx.prepared.len() {
+        step(ctx, options, &mut pass, &mut tracker, index, observers)?;
+    }
+    Ok(pass)
+}
+
+/// Localises (when refining), fuses and observes frame `index`.
+fn step(
+    ctx: &Context<'_>,
+    options: &FuseOptions,
+    pass: &mut Pass,
+    tracker: &mut Tracker,
+    index: usize,
+    observers: &mut [&mut dyn Observer],
+) -> Result<(), ReplayError> {
+    let p = &ctx.prepared[index];
+    let data = &ctx.data;
+    let correction = match index.checked_sub(1) {
+        Some(prev) if options.refine_poses => {
+            let segs: Vec<(Segment, Iso3)> = segments_between(
+                &data.commands,
+                ctx.prepared[prev].frame.stamp_ns,
+                p.frame.stamp_ns,
+            )
+            .into_iter()
+            .map(|seg| (seg, data.odom_at(seg.start_ns).unwrap_or(p.odometry)))
+            .collect();
+            tracker.total_cov = propagate(
+                tracker.total_cov,
+                &segs,
+                options.sigma_v_mps,
+                options.sigma_w_radps,
+            );
+            let (c, predicted) = localise(
+                &pass.fuser.grid,
+                data,
+                options,
+                &ctx.prepared,
+                &pass.poses,
+                &tracker.seen,
+                index,
+                tracker.floor_map.as_ref(),
+                &TotalGate {
+                    odometry: p.odometry,
+                    covariance: tracker.total_cov,
+                },
+            );
+            pass.poses.push(c.apply(&predicted));
+            if tracker.floor_map.is_some() && c.floor_fit.is_some_and(|f| f[0] < MIN_FLOOR_FIT) {
+                tracker.floor_failures += 1;
+                if tracker.floor_failures >= MAX_FLOOR_FAILURES {
+                    tracker.floor_map = None;
+                    pass.floor_dropped_at = Some(index);
+                }
+            }
+            Some(c)
+        }
+        _ => {
+            pass.poses.push(p.odometry);
+            None
+        }
+    };
+    let odom_from_base = pass.poses[index];
+    if options.refine_poses {
+        tracker.seen.extend(sightings(
+            index,
+            &p.clusters,
+            &data.camera,
+            &(odom_from_base * data.base_from_camera),
+        ));
+    }
+    if let Some(map) = tracker.floor_map.as_mut() {
+        map.add(&p.floor, &odom_from_base);
+    }
+    // A frame whose pose was measured (corrected, or found where it was predicted) is not
+    // blurred: the measurement replaces the motion model's spread.
+    let localised = correction.is_some_and(|c| c.outcome.measured());
+    let segments = fuse_one(
+        &mut pass.fuser,
+        data,
+        &ctx.prepared,
+        &pass.poses,
+        index,
+        localised,
+    );
+    let objects = find_objects(&pass.fuser.grid, &options.objects);
+    let cells_updated = pass.fuser.last_cells_updated;
+    if !observers.is_empty() {
         let fr = &p.frame;
-        let at = || reader.at(Some(&fr.topic), fr.log_time_ns);
-        let clusters = if options.refine_poses {
-            detection_clusters(&TileEvidence::from_probabilities(
-                p.probs.rows,
-                p.probs.cols,
-                p.probs.tile_px,
-                &p.probs.p,
-                prior,
+        let step = FrameStep {
+            index,
+            frame: fr.clone(),
+            odom_from_camera: odom_from_base * data.base_from_camera,
+            odom_from_base,
+            odometry: p.odometry,
+            correction,
+            image: decode_frame(ctx.reader, data, fr)?,
+            probs: p.probs.clone(),
+            segments,
+            cells_updated,
+            objects: objects.clone(),
+        };
+        for o in observers.iter_mut() {
+            o.on_frame(data, &step, &pass.fuser.grid)
+                .map_err(|e| ctx.observer_err(Some(fr), &e))?;
+        }
+    }
+    pass.per_frame.push(summary(
+        p,
+        index,
+        &odom_from_base,
+        correction,
+        cells_updated,
+        &pass.fuser.grid,
+        objects,
+    ));
+    Ok(())
+}
+
+fn summary(
+    p: &Prepared,
+    index: usize,
+    odom_from_base: &Iso3,
+    correction: Option<Correction>,
+    cells_updated: usize,
+    grid: &Grid,
+    objects: Vec<Object>,
+) -> FrameSummary {
+    let max_l = grid
+        .log_odds
+        .iter()
+        .copied()
+        .fold(f32::NEG_INFINITY, f32::max);
+    let base = odom_from_base.translation.vector;
+    let odo = p.odometry.translation.vector;
+    FrameSummary {
+        index,
+        stamp_ns: p.frame.stamp_ns,
+        log_time_ns: p.frame.log_time_ns,
+        position_m: [base.x, base.y, base.z],
+        yaw_rad: yaw_of(odom_from_base),
+        odom_position_m: [odo.x, odo.y, odo.z],
+        odom_yaw_rad: yaw_of(&p.odometry),
+        correction,
+        cells_updated,
+        max_probability: crate::grid::sigmoid(f64::from(max_l)),
+        objects,
+    }
+}
+
+/// Compares how well the refined poses and the /odom poses explain the frames: the rays
+/// through every frame's detections, gathered per final object and triangulated, and the
+/// floor the frames saw (when the floor term was used to the end).
+fn check_refinement(ctx: &Context<'_>, pass: &Pass) -> RefinementCheck {
+    let data = &ctx.data;
+    let objects = find_objects(&pass.fuser.grid, &pass.fuser.options.objects);
+    let seeds: Vec<[f64; 3]> = objects.iter().map(|o| o.mass_centroid_m).collect();
+    let odometry: Vec<Iso3> = ctx.prepared.iter().map(|p| p.odometry).collect();
+    // The /odom rays may pass as far from the refined objects as the poses differ.
+    let moved_m = pass
+        .poses
+        .iter()
+        .zip(&odometry)
+        .map(|(a, b)| (a.translation.vector - b.translation.vector).xy().norm())
+        .fold(0.0, f64::max);
+    let rays = |poses: &[Iso3]| -> Vec<Sighting> {
+        ctx.prepared
+            .iter()
+            .zip(poses)
+            .enumerate()
+            .flat_map(|(i, (p, pose))| {
+                sightings(
+                    i,
+                    &p.clusters,
+                    &data.camera,
+                    &(pose * data.base_from_camera),
+                )
+            })
+            .collect()
+    };
+    let gate = crate::refine::GATE_M + moved_m;
+    let refined = Consistency::of(&seeds, &rays(&pass.poses), data.camera.fx, gate);
+    let odom = Consistency::of(&seeds, &rays(&odometry), data.camera.fx, gate);
+    let floor = floor_params(&pass.fuser.options)
+        .filter(|_| pass.floor_dropped_at.is_none())
+        .map(|fp| {
+            let disagreement = |poses: &[Iso3]| {
+                let patches: Vec<(&FloorPatch, &Iso3)> =
+                    ctx.prepared.iter().map(|p| &p.floor).zip(poses).collect();
+                crate::floor::disagreement(&patches, fp)
+            };
+            [disagreement(&pass.poses), disagreement(&odometry)]
+        });
+    // Each kind of evidence can be worse at the refined poses while the other is better: on
+    // a tour whose /odom drift is a turn about the object, the rays meet as well at /odom, and
+    // only the floor shows the drift. A replay is rolled back when one is worse and the other
+    // no better.
+    let rays_worse = refined.worse_than(&odom);
+    let rays_better = odom.worse_than(&refined);
+    let floor_worse = floor.is_some_and(|[r, o]| r > o * (1.0 + ROLLBACK_TOLERANCE));
+    let floor_better = floor.is_some_and(|[r, o]| o > r * (1.0 + ROLLBACK_TOLERANCE));
+    let rolled_back =
+        pass.poses != odometry && ((rays_worse && !floor_better) || (floor_worse && !rays_better));
+    RefinementCheck {
+        refined_rays: refined,
+        odometry_rays: odom,
+        floor_disagreement: floor,
+        floor_dropped_at: pass.floor_dropped_at,
+        rolled_back,
+        reason: if !rolled_back {
+            None
+        } else if rays_worse {
+            Some(format!(
+                "the refined poses explain the detections worse than /odom (mean ray chi-square {:.2} against {:.2})",
+                refined.mean_chi2, odom.mean_chi2
             ))
         } else {
-            Vec::new()
-        };
-        let correction = match index.checked_sub(1) {
-            Some(_) if options.refine_poses => {
-                let (c, predicted) = localise(
-                    &fuser.grid,
-                    &data,
-                    options,
-                    &prepared,
-                    &poses,
-                    &seen,
-                    &clusters,
-                    index,
-                    floor_map.as_ref(),
-                );
-                poses.push(c.apply(&predicted));
-                Some(c)
-            }
-            _ => {
-                poses.push(p.odometry);
-                None
-            }
-        };
-        if options.refine_poses {
-            seen.extend(sightings(
-                index,
-                &clusters,
-                &data.camera,
-                &(poses[index] * data.base_from_camera),
-            ));
-        }
-        let odom_from_base = poses[index];
-        if let Some(map) = floor_map.as_mut() {
-            map.add(&p.floor, &odom_from_base);
-        }
-        let localised = correction.is_some_and(|c| c.applied);
-        let segments = fuse_one(&mut fuser, &data, &prepared, &poses, index, localised);
-        let odom_from_camera = odom_from_base * data.base_from_camera;
-        let cells_updated = fuser.last_cells_updated;
-        let objects = find_objects(&fuser.grid, &options.objects);
-        if !observers.is_empty() {
-            let step = FrameStep {
-                index,
-                frame: fr.clone(),
-                odom_from_camera,
-                odom_from_base,
-                odometry: p.odometry,
-                correction,
-                image: decode_frame(reader, &data, fr)?,
-                probs: p.probs.clone(),
-                segments,
-                cells_updated,
-                objects: objects.clone(),
-            };
-            for o in observers.iter_mut() {
-                o.on_frame(&data, &step, &fuser.grid)
-                    .map_err(|e| ReplayError::Invalid {
-                        at: at(),
-                        what: format!("observer failed: {e:#}"),
-                    })?;
-            }
-        }
-        let max_l = fuser
-            .grid
-            .log_odds
-            .iter()
-            .copied()
-            .fold(f32::NEG_INFINITY, f32::max);
-        let base = odom_from_base.translation.vector;
-        let odo = p.odometry.translation.vector;
-        per_frame.push(FrameSummary {
-            index,
-            stamp_ns: fr.stamp_ns,
-            log_time_ns: fr.log_time_ns,
-            position_m: [base.x, base.y, base.z],
-            yaw_rad: yaw_of(&odom_from_base),
-            odom_position_m: [odo.x, odo.y, odo.z],
-            odom_yaw_rad: yaw_of(&p.odometry),
-            correction,
-            cells_updated,
-            max_probability: crate::grid::sigmoid(f64::from(max_l)),
-            objects,
-        });
+            floor.map(|[r, o]| {
+                format!("the floor seen at the refined poses disagrees with itself more than at /odom ({r:.3} against {o:.3})")
+            })
+        },
     }
-    let with_cells = find_objects_with_cells(&fuser.grid, &options.objects);
+}
+
+/// How much worse (relative) the refined replay may explain the floor than /odom before it
+/// is rolled back.
+pub const ROLLBACK_TOLERANCE: f64 = 0.05;
+
+/// The check of a refined replay against /odom, as the report gives it.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct RefinementCheck {
+    /// Rays through the detections at the refined poses, per final object.
+    pub refined_rays: Consistency,
+    /// The same rays at the /odom poses.
+    pub odometry_rays: Consistency,
+    /// Mean disagreement of the floor across views (variance over the colour noise), at the
+    /// refined and at the /odom poses; absent when the floor term was not used to the end.
+    pub floor_disagreement: Option<[f64; 2]>,
+    /// The frame from which the floor term was dropped because the floor no longer fit.
+    pub floor_dropped_at: Option<usize>,
+    /// Whether the replay fell back to /odom.
+    pub rolled_back: bool,
+    /// Why, in words.
+    pub reason: Option<String>,
+}
+
+fn finish(ctx: Context<'_>, pass: Pass, refinement: Option<RefinementCheck>) -> Outcome {
+    let grid = pass.fuser.grid;
+    let options = pass.fuser.options;
+    let with_cells = find_objects_with_cells(&grid, &options.objects);
     let mut object_cells: Vec<usize> = with_cells
         .iter()
         .flat_map(|(_, c)| c.iter().copied())
         .collect();
     object_cells.sort_unstable();
     let objects = with_cells.into_iter().map(|(o, _)| o).collect();
-    Ok(Outcome {
-        data,
+    Outcome {
+        frames_fused: ctx.prepared.len(),
+        data: ctx.data,
         object_cells,
-        grid: fuser.grid,
+        grid,
         objects,
-        frames_fused: prepared.len(),
-        per_frame,
-        warnings,
-    })
+        per_frame: pass.per_frame,
+        warnings: ctx.warnings,
+        refinement,
+    }
 }
 
 /// Decodes a frame and checks its size against CameraInfo.
@@ -891,10 +1208,11 @@ fn localise(
     prepared: &[Prepared],
     poses: &[Iso3],
     seen: &[Sighting],
-    clusters: &[[f64; 2]],
     index: usize,
     floor_map: Option<&FloorMap>,
+    gate: &TotalGate,
 ) -> (Correction, Iso3) {
+    let clusters = &prepared[index].clusters;
     let prev = index - 1;
     let p = &prepared[index];
     // Motion since the previous frame, each segment with its start pose moved by the
@@ -937,6 +1255,7 @@ fn localise(
         &predicted,
         &cov,
         floor_map.map(|m| (m, &p.floor)),
+        Some(gate),
     );
     (correction, predicted)
 }

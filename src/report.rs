@@ -10,7 +10,7 @@ use std::path::Path;
 use serde::{Deserialize, Serialize};
 
 use crate::objects::Object;
-use crate::replay::{FrameSummary, FuseOptions, Outcome};
+use crate::replay::{FrameSummary, FuseOptions, Outcome, RefinementCheck};
 
 /// 2: objects carry `mass_centroid_m`, and `centroid_m` is the centre of the object's
 /// extent (in version 1 it was the mass centroid).
@@ -43,6 +43,10 @@ pub struct Report {
     /// Flat indices (C order) of the cells of all objects: the thresholded belief.
     pub object_cells: Vec<usize>,
     pub per_frame: Vec<FrameSummary>,
+    /// When poses were refined: the check of the refined replay against /odom, and whether
+    /// it was rolled back.
+    #[serde(default)]
+    pub refinement: Option<RefinementCheck>,
     pub warnings: Vec<String>,
     /// Wall-clock milliseconds per stage: informational, the only field that varies.
     pub timing_ms: BTreeMap<String, f64>,
@@ -91,6 +95,7 @@ impl Report {
             objects: outcome.objects.clone(),
             object_cells: outcome.object_cells.clone(),
             per_frame: outcome.per_frame.clone(),
+            refinement: outcome.refinement.clone(),
             warnings: outcome.warnings.clone(),
             timing_ms,
         }

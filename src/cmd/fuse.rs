@@ -289,31 +289,69 @@ pub fn print_summary(f: &Fused) {
         );
     }
     if r.options.refine_poses {
-        // How far refinement moved the poses off odometry, and how many frames it localised.
-        let mut localised = 0;
-        let (mut max_m, mut max_deg) = (0.0f64, 0.0f64);
-        for f in &r.per_frame {
-            if f.correction.is_some_and(|c| c.applied) {
-                localised += 1;
-            }
-            let d = (f.position_m[0] - f.odom_position_m[0])
-                .hypot(f.position_m[1] - f.odom_position_m[1]);
-            let a = objloc::geometry::wrap_angle(f.yaw_rad - f.odom_yaw_rad).to_degrees();
-            max_m = max_m.max(d);
-            max_deg = max_deg.max(a.abs());
-        }
-        println!(
-            "poses refined: {localised} of {} frames corrected against {}; at most {max_m:.3} m and {max_deg:.1} deg from odometry",
-            r.per_frame.len(),
-            if r.options.refine_floor {
-                "the objects and the floor"
-            } else {
-                "the objects"
-            }
-        );
+        print_refinement(r);
     }
     for w in &r.warnings {
         eprintln!("warning: {w}");
+    }
+}
+
+/// What refinement did: the frames per verdict, how far the poses moved off /odom, whether
+/// the floor was dropped, and a rollback with its reason.
+fn print_refinement(r: &Report) {
+    use objloc::refine::Verdict;
+    let mut counts: Vec<(Verdict, usize)> = Vec::new();
+    let (mut max_m, mut max_deg) = (0.0f64, 0.0f64);
+    for f in &r.per_frame {
+        if let Some(c) = f.correction {
+            match counts.iter_mut().find(|(v, _)| *v == c.outcome) {
+                Some((_, n)) => *n += 1,
+                None => counts.push((c.outcome, 1)),
+            }
+        }
+        let d =
+            (f.position_m[0] - f.odom_position_m[0]).hypot(f.position_m[1] - f.odom_position_m[1]);
+        let a = objloc::geometry::wrap_angle(f.yaw_rad - f.odom_yaw_rad).to_degrees();
+        max_m = max_m.max(d);
+        max_deg = max_deg.max(a.abs());
+    }
+    let verdicts: Vec<String> = counts
+        .iter()
+        .map(|(v, n)| format!("{n} {}", v.label()))
+        .collect();
+    let against = if !r.options.refine_floor {
+        "the objects".to_owned()
+    } else {
+        match r.refinement.as_ref().and_then(|c| c.floor_dropped_at) {
+            Some(k) => {
+                format!("the objects and the floor (floor dropped from frame {k}: it did not fit)")
+            }
+            None => "the objects and the floor".to_owned(),
+        }
+    };
+    println!(
+        "poses refined against {against}: {} of {} frames: {}; at most {max_m:.3} m and {max_deg:.1} deg from odometry",
+        r.per_frame.len().saturating_sub(1),
+        r.per_frame.len(),
+        verdicts.join(", "),
+    );
+    if let Some(c) = r.refinement.as_ref() {
+        println!(
+            "refinement check: rays meet with mean chi-square {:.2} at the refined poses, {:.2} at /odom{}",
+            c.refined_rays.mean_chi2,
+            c.odometry_rays.mean_chi2,
+            c.floor_disagreement
+                .map(|[a, b]| format!("; floor disagreement {a:.3} refined, {b:.3} /odom"))
+                .unwrap_or_default()
+        );
+        if c.rolled_back {
+            println!(
+                "ROLLED BACK to /odom: {}",
+                c.reason
+                    .as_deref()
+                    .unwrap_or("the refined poses explained the frames worse")
+            );
+        }
     }
 }
 

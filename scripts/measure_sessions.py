@@ -1,0 +1,191 @@
+#!/usr/bin/env python3
+"""Fuses every session of the three session sets with default options, `--no-floor` and
+`--no-refine-poses`, scores each with `objloc eval --json`, and prints a table per set and a
+summary (the targets of issue #19: right count and every object within 0.12 m; on low-noise
+tours no object more than 0.02 m worse than `--no-refine-poses`).
+
+Sets (each skipped with a message where its data is absent):
+  shipped  recordings/*-tour*.mcap (models from recordings/*-train.mcap)
+  heldout  our simulator's held-out-style tours (recorded into target/measure-heldout as
+           scripts/measure_heldout.sh does: seeds 21/22, default and 5 %/3 % noise)
+  foreign  ../shared/foreign/sessions (another renderer; --bounds from its manifest)
+
+Usage: scripts/measure_sessions.py [--sets shipped,heldout,foreign] [--modes default,objects,odom]
+       [--json OUT.json] [-- extra fuse flags...]        (from the repository root)
+Stdlib only; calls target/release/objloc (built if missing).
+"""
+import argparse
+import concurrent.futures as cf
+import json
+import os
+import subprocess
+import sys
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+BIN = os.path.join(ROOT, "target", "release", "objloc")
+OUT = os.path.join(ROOT, "target", "measure-sessions")
+FOREIGN = os.environ.get("FOREIGN_DIR", os.path.join(ROOT, "..", "shared", "foreign", "sessions"))
+HELDOUT = os.path.join(ROOT, "target", "measure-heldout")
+ROOM = "-3.5,-3.5,0,3.5,3.5,2.5"
+MODES = {"default": [], "objects": ["--no-floor"], "odom": ["--no-refine-poses"]}
+TARGET_M = 0.12
+WORSE_M = 0.02
+
+
+def run(args, **kw):
+    env = dict(os.environ, RAYON_NUM_THREADS="1")
+    r = subprocess.run(args, cwd=ROOT, env=env, capture_output=True, text=True, **kw)
+    if r.returncode != 0:
+        raise RuntimeError("%s: %s" % (" ".join(args), r.stderr.strip()))
+    return r.stdout
+
+
+def train(session, model):
+    if not os.path.exists(model) or os.path.getmtime(model) < os.path.getmtime(BIN):
+        run([BIN, "train", session, "-o", model, "--no-rerun"])
+    return model
+
+
+def sim_record(args, out):
+    if not os.path.exists(out):
+        run([BIN, "record", "sim"] + args + ["-o", out])
+    return out
+
+
+def shipped_sessions():
+    rec = os.path.join(ROOT, "recordings")
+    chair = train(os.path.join(rec, "chair-train.mcap"), os.path.join(OUT, "shipped-chair.json"))
+    bottle = train(os.path.join(rec, "bottle-train.mcap"), os.path.join(OUT, "shipped-bottle.json"))
+    for t in ["chair-tour", "two-chairs-tour", "bottle-tour", "chair-tour-drift"]:
+        yield dict(set="shipped", name=t, session=os.path.join(rec, t + ".mcap"),
+                   model=bottle if t.startswith("bottle") else chair, bounds=None,
+                   low_noise=(t != "chair-tour-drift"), truth=None)
+
+
+def heldout_sessions():
+    os.makedirs(HELDOUT, exist_ok=True)
+    scenes = ["chair", "bottle", "two-chairs", "two-bottles", "chair-bare-floor", "chair-tiled-floor"]
+    for scene in scenes:
+        f = os.path.join(ROOT, "scripts", "heldout", scene + ".json")
+        sargs = ["--scene-file", f] if os.path.exists(f) else ["--scene", scene]
+        tr = sim_record(sargs + ["--kind", "train", "--seed", "11"], os.path.join(HELDOUT, scene + "-train.mcap"))
+        model = train(tr, os.path.join(OUT, "heldout-%s.json" % scene))
+        for noise in ["default", "0.05,0.03"]:
+            for seed in [21, 22]:
+                extra = [] if noise == "default" else ["--speed-noise", noise]
+                path = os.path.join(HELDOUT, "%s-%s-%d.mcap" % (scene, noise, seed))
+                sim_record(sargs + ["--kind", "tour", "--seed", str(seed)] + extra, path)
+                yield dict(set="heldout", name="%s-%s-%d" % (scene, "5%/3%" if extra else "default", seed),
+                           session=path, model=model, bounds=ROOM, low_noise=(noise == "default"), truth=None)
+
+
+def foreign_sessions():
+    manifest = json.load(open(os.path.join(FOREIGN, "manifest.json")))
+    by_file = {s["file"]: s for s in manifest["sessions"]}
+    for s in sorted(manifest["sessions"], key=lambda s: s["file"]):
+        if s["kind"] != "tour":
+            continue
+        train_file = "%s-train-s%d.mcap" % (s["scene"], s["seed"])
+        if train_file not in by_file:
+            continue
+        model = train(os.path.join(FOREIGN, train_file), os.path.join(OUT, "foreign-" + train_file.replace(".mcap", ".json")))
+        b = s["room_bounds"]
+        yield dict(set="foreign", name=s["file"][:-5], session=os.path.join(FOREIGN, s["file"]), model=model,
+                   bounds=",".join(str(v) for v in b["min"] + b["max"]), low_noise=s["noise_scale"] < 0.5,
+                   truth=[o["centroid"] for o in s["objects"]])
+
+
+def fuse_and_eval(sess, mode, extra):
+    rep = os.path.join(OUT, "%s-%s-%s.json" % (sess["set"], sess["name"].replace("/", "_").replace("%", ""), mode))
+    args = [BIN, "fuse", sess["session"], "--model", sess["model"], "--report", rep, "--no-rerun"]
+    if sess["bounds"]:
+        args.append("--bounds=" + sess["bounds"])
+    run(args + MODES[mode] + extra)
+    e = json.loads(run([BIN, "eval", sess["session"], "--report", rep, "--json"]))[0]
+    r = json.load(open(rep))
+    errs = sorted(m["error_m"] for m in e["matches"])
+    outcomes = {}
+    for f in r["per_frame"]:
+        c = f.get("correction")
+        if c is not None:
+            k = c.get("outcome") or ("accepted" if c.get("applied") else "insignificant")
+            outcomes[k] = outcomes.get(k, 0) + 1
+    t = e.get("trajectory") or {}
+    chk = r.get("refinement") or {}
+    return dict(errors=errs, missed=len(e["missed"]), spurious=len(e["spurious"]),
+                odom_ate=t.get("odometry_ate_m"), ate=t.get("fused_ate_m"), outcomes=outcomes,
+                rolled_back=bool(chk.get("rolled_back")), floor_dropped_at=chk.get("floor_dropped_at"),
+                ray_chi2=[(chk.get("refined_rays") or {}).get("mean_chi2"), (chk.get("odometry_rays") or {}).get("mean_chi2")],
+                floor_disagreement=chk.get("floor_disagreement"))
+
+
+def ok(res):
+    return res["missed"] == 0 and res["spurious"] == 0 and all(d <= TARGET_M for d in res["errors"])
+
+
+def fmt(res):
+    s = ",".join("%.3f" % d for d in res["errors"]) or "-"
+    if res["missed"]:
+        s += " %dm" % res["missed"]
+    if res["spurious"]:
+        s += " %ds" % res["spurious"]
+    return s
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--sets", default="shipped,heldout,foreign")
+    ap.add_argument("--modes", default="default,objects,odom")
+    ap.add_argument("--json")
+    ap.add_argument("-j", type=int, default=2)
+    ap.add_argument("extra", nargs="*")
+    a = ap.parse_args()
+    os.makedirs(OUT, exist_ok=True)
+    if not os.path.exists(BIN):
+        subprocess.run(["cargo", "build", "--release"], cwd=ROOT, check=True)
+    modes = a.modes.split(",")
+    gens = {"shipped": shipped_sessions, "heldout": heldout_sessions, "foreign": foreign_sessions}
+    results = []
+    for name in a.sets.split(","):
+        if name == "foreign" and not os.path.isdir(FOREIGN):
+            print("foreign: skipped, no %s" % FOREIGN)
+            continue
+        sessions = list(gens[name]())
+        jobs = [(s, m) for s in sessions for m in modes]
+        with cf.ThreadPoolExecutor(a.j) as ex:
+            outs = list(ex.map(lambda sm: fuse_and_eval(sm[0], sm[1], a.extra), jobs))
+        table = {}
+        for (s, m), res in zip(jobs, outs):
+            table.setdefault(s["name"], {})[m] = res
+        print("\n== %s (%d sessions)" % (name, len(sessions)))
+        print("%-32s %s" % ("session", "".join("%-26s" % m for m in modes)))
+        summary = {m: dict(ok=0, worse=0, worst=0.0) for m in modes}
+        for s in sessions:
+            row = table[s["name"]]
+            cells = []
+            for m in modes:
+                res = row[m]
+                good = ok(res)
+                summary[m]["ok"] += good
+                worst = max(res["errors"] or [0.0]) if not (res["missed"] or res["spurious"]) else float("inf")
+                summary[m]["worst"] = max(summary[m]["worst"], worst)
+                worse = ""
+                if s["low_noise"] and "odom" in row and m != "odom":
+                    o = row["odom"]
+                    if len(res["errors"]) < len(o["errors"]) or any(x > y + WORSE_M for x, y in zip(res["errors"], o["errors"])) \
+                            or (max(res["errors"] or [0]) > max(o["errors"] or [0]) + WORSE_M):
+                        worse = "!"
+                        summary[m]["worse"] += 1
+                code = {"accepted": "A", "ambiguous": "?", "gated": "G", "insignificant": "i", "no-evidence": "n", "rolled-back": "R"}
+                oc = "".join("%s%d" % (code.get(k, k[0]), v) for k, v in sorted(res["outcomes"].items()))
+                cells.append("%-26s" % ((fmt(res) + ("" if good else " X") + worse + " " + oc)[:25]))
+            print("%-32s %s" % (s["name"][:32], "".join(cells)))
+            results.append(dict(set=name, session=s["name"], low_noise=s["low_noise"], **{m: row[m] for m in modes}))
+        print("%-32s %s" % ("ok / low-noise worse / worst", "".join(
+            "%-26s" % ("%d/%d  %d  %.3f" % (summary[m]["ok"], len(sessions), summary[m]["worse"], summary[m]["worst"])) for m in modes)))
+    if a.json:
+        json.dump(results, open(a.json, "w"), indent=1)
+
+
+if __name__ == "__main__":
+    main()
