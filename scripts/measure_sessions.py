@@ -104,6 +104,7 @@ def fuse_and_eval(sess, mode, extra):
     e = json.loads(run([BIN, "eval", sess["session"], "--report", rep, "--json"]))[0]
     r = json.load(open(rep))
     errs = sorted(m["error_m"] for m in e["matches"])
+    by_truth = {m["truth_index"]: m["error_m"] for m in e["matches"]}
     outcomes = {}
     for f in r["per_frame"]:
         c = f.get("correction")
@@ -112,7 +113,7 @@ def fuse_and_eval(sess, mode, extra):
             outcomes[k] = outcomes.get(k, 0) + 1
     t = e.get("trajectory") or {}
     chk = r.get("refinement") or {}
-    return dict(errors=errs, missed=len(e["missed"]), spurious=len(e["spurious"]),
+    return dict(errors=errs, by_truth=by_truth, missed=len(e["missed"]), spurious=len(e["spurious"]),
                 odom_ate=t.get("odometry_ate_m"), ate=t.get("fused_ate_m"), outcomes=outcomes,
                 rolled_back=bool(chk.get("rolled_back")), floor_dropped_at=chk.get("floor_dropped_at"),
                 ray_chi2=[(chk.get("refined_rays") or {}).get("mean_chi2"), (chk.get("odometry_rays") or {}).get("mean_chi2")],
@@ -172,8 +173,9 @@ def main():
                 worse = ""
                 if s["low_noise"] and "odom" in row and m != "odom":
                     o = row["odom"]
-                    if len(res["errors"]) < len(o["errors"]) or any(x > y + WORSE_M for x, y in zip(res["errors"], o["errors"])) \
-                            or (max(res["errors"] or [0]) > max(o["errors"] or [0]) + WORSE_M):
+                    # Worse: an object /odom found that this one missed or placed more than
+                    # WORSE_M further off (json keys are strings after a round trip).
+                    if any(t not in res["by_truth"] or res["by_truth"][t] > d + WORSE_M for t, d in o["by_truth"].items()):
                         worse = "!"
                         summary[m]["worse"] += 1
                 code = {"accepted": "A", "ambiguous": "?", "gated": "G", "insignificant": "i", "no-evidence": "n", "rolled-back": "R"}

@@ -882,6 +882,7 @@ fn step(
 ) -> Result<(), ReplayError> {
     let p = &ctx.prepared[index];
     let data = &ctx.data;
+    let mut floor_unfit = false;
     let correction = match index.checked_sub(1) {
         Some(prev) if options.refine_poses => {
             let segs: Vec<(Segment, Iso3)> = segments_between(
@@ -914,6 +915,8 @@ fn step(
             );
             pass.poses.push(c.apply(&predicted));
             if tracker.floor_map.is_some() && c.floor_fit.is_some_and(|f| f[0] < MIN_FLOOR_FIT) {
+                // Nor is it added to the map: what it shows is not the floor the map holds.
+                floor_unfit = true;
                 tracker.floor_failures += 1;
                 if tracker.floor_failures >= MAX_FLOOR_FAILURES {
                     tracker.floor_map = None;
@@ -936,7 +939,7 @@ fn step(
             &(odom_from_base * data.base_from_camera),
         ));
     }
-    if let Some(map) = tracker.floor_map.as_mut() {
+    if let Some(map) = tracker.floor_map.as_mut().filter(|_| !floor_unfit) {
         map.add(&p.floor, &odom_from_base);
     }
     // A frame whose pose was measured (corrected, or found where it was predicted) is not
