@@ -79,6 +79,21 @@ def heldout_sessions():
                            session=path, model=model, bounds=ROOM, low_noise=(noise == "default"), truth=None)
 
 
+def repeating_sessions():
+    """Exact odometry over repeating floor patterns: refinement must not move the poses (ATE at
+    most /odom's, 0, plus 0.02 m)."""
+    os.makedirs(HELDOUT, exist_ok=True)
+    for scene in ["chair-checker-floor", "chair-rings-floor", "chair-stripes-floor", "chair-tiles-floor"]:
+        sargs = ["--scene-file", os.path.join(ROOT, "scripts", "heldout", scene + ".json")]
+        tr = sim_record(sargs + ["--kind", "train", "--seed", "11"], os.path.join(HELDOUT, scene + "-train.mcap"))
+        model = train(tr, os.path.join(OUT, "heldout-%s.json" % scene))
+        for seed in [31, 32]:
+            path = os.path.join(HELDOUT, "%s-exact-%d.mcap" % (scene, seed))
+            sim_record(sargs + ["--kind", "tour", "--seed", str(seed), "--speed-noise", "0,0"], path)
+            yield dict(set="repeating", name="%s-exact-%d" % (scene, seed), session=path, model=model,
+                       bounds=ROOM, low_noise=True, truth=None, exact=True)
+
+
 def foreign_sessions():
     manifest = json.load(open(os.path.join(FOREIGN, "manifest.json")))
     by_file = {s["file"]: s for s in manifest["sessions"]}
@@ -145,7 +160,8 @@ def main():
     if not os.path.exists(BIN):
         subprocess.run(["cargo", "build", "--release"], cwd=ROOT, check=True)
     modes = a.modes.split(",")
-    gens = {"shipped": shipped_sessions, "heldout": heldout_sessions, "foreign": foreign_sessions}
+    gens = {"shipped": shipped_sessions, "heldout": heldout_sessions, "foreign": foreign_sessions,
+            "repeating": repeating_sessions}
     results = []
     for name in a.sets.split(","):
         if name == "foreign" and not os.path.isdir(FOREIGN):
@@ -160,7 +176,7 @@ def main():
             table.setdefault(s["name"], {})[m] = res
         print("\n== %s (%d sessions)" % (name, len(sessions)))
         print("%-32s %s" % ("session", "".join("%-26s" % m for m in modes)))
-        summary = {m: dict(ok=0, worse=0, worst=0.0) for m in modes}
+        summary = {m: dict(ok=0, worse=0, worst=0.0, errs=[]) for m in modes}
         for s in sessions:
             row = table[s["name"]]
             cells = []
@@ -168,6 +184,7 @@ def main():
                 res = row[m]
                 good = ok(res)
                 summary[m]["ok"] += good
+                summary[m]["errs"] += res["errors"]
                 worst = max(res["errors"] or [0.0]) if not (res["missed"] or res["spurious"]) else float("inf")
                 summary[m]["worst"] = max(summary[m]["worst"], worst)
                 worse = ""
@@ -180,11 +197,15 @@ def main():
                         summary[m]["worse"] += 1
                 code = {"accepted": "A", "ambiguous": "?", "gated": "G", "insignificant": "i", "no-evidence": "n", "rolled-back": "R"}
                 oc = "".join("%s%d" % (code.get(k, k[0]), v) for k, v in sorted(res["outcomes"].items()))
+                if s.get("exact"):
+                    oc = "ATE %.3f%s " % (res["ate"] or 0, "" if (res["ate"] or 0) <= (res["odom_ate"] or 0) + WORSE_M else "!") + oc
                 cells.append("%-26s" % ((fmt(res) + ("" if good else " X") + worse + " " + oc)[:25]))
             print("%-32s %s" % (s["name"][:32], "".join(cells)))
             results.append(dict(set=name, session=s["name"], low_noise=s["low_noise"], **{m: row[m] for m in modes}))
         print("%-32s %s" % ("ok / low-noise worse / worst", "".join(
             "%-26s" % ("%d/%d  %d  %.3f" % (summary[m]["ok"], len(sessions), summary[m]["worse"], summary[m]["worst"])) for m in modes)))
+        print("%-32s %s" % ("mean error of found objects", "".join(
+            "%-26s" % ("%.3f (%d)" % (sum(summary[m]["errs"]) / max(1, len(summary[m]["errs"])), len(summary[m]["errs"]))) for m in modes)))
     if a.json:
         json.dump(results, open(a.json, "w"), indent=1)
 

@@ -209,7 +209,7 @@ pub fn find_objects_with_cells(grid: &Grid, params: &ObjectParams) -> Vec<(Objec
 /// the box within its footprint: two instances of one object have similar sizes and keep
 /// apart however close they stand.
 pub const FRAGMENT_RATIO: usize = 5;
-pub const FRAGMENT_MARGIN_CELLS: f64 = 2.0;
+pub const FRAGMENT_MARGIN_CELLS: f64 = 3.0;
 
 /// Merges every component whose centroid lies inside the bounding box of a larger one into
 /// it. Objects do not nest, so such a component is a fragment cut off by the grow

@@ -78,7 +78,7 @@ pub const MIN_RAY_SPREAD: f64 = 0.034;
 /// noise of the detection centroids), with real drift 3-40; applying the small ones only
 /// compounds that noise into drift along the direction one object cannot observe (exact
 /// odometry: ATE 0.048 m applied, 0.004 m gated).
-pub const MIN_GAIN: f64 = 0.5;
+pub const MIN_GAIN: f64 = 0.75;
 
 /// Chi-square (3 degrees of freedom) a frame's total correction against /odom may reach:
 /// the 99 % point, for a speed noise up to [`GATE_SIGMA_SCALE`] times the sigmas. Beyond it
@@ -86,11 +86,11 @@ pub const MIN_GAIN: f64 = 0.5;
 /// each step looked like.
 pub const GATE_CHI2: f64 = 11.34;
 
-/// The gate allows for speed noise this much larger than `--sigma-v/-w` say: the default
+/// The gate allows for speed noise up to this many times what `--sigma-v/-w` say: the default
 /// sigmas (0.01) sit between the 1 %/0.6 % and the 5 %/3 % noise of the simulated tours
 /// (0.003 and 0.015 at 0.3 m/s and 0.5 rad/s), and a gate at the sigmas themselves stopped
 /// true corrections on the 5 %/3 % tours (docs/fuser.md).
-pub const GATE_SIGMA_SCALE: f64 = 1.5;
+pub const GATE_SIGMA_SCALE: f64 = 2.0;
 
 /// Fraction of a frame's floor cells that must fit the map (within 2 sigmas) at the best
 /// pose for the floor term to be used for that frame.

@@ -645,6 +645,19 @@ fn texture_factor(t: &Texture, p: &Vector3<f64>) -> f64 {
             let band = if ring < 0.25 { 1.0 - ring * 4.0 } else { 0.0 };
             1.0 - amount * (0.35 * warp + 0.65 * band)
         }
+        Texture::Checker { period_m, amount } => {
+            let a = (p.x / period_m).rem_euclid(1.0) < 0.5;
+            let b = (p.y / period_m).rem_euclid(1.0) < 0.5;
+            if a == b { 1.0 } else { 1.0 - amount }
+        }
+        Texture::Rings { period_m, amount } => {
+            let r = (p.x * p.x + p.y * p.y).sqrt() / period_m;
+            if r.rem_euclid(1.0) < 0.5 {
+                1.0
+            } else {
+                1.0 - amount
+            }
+        }
     }
 }
 

@@ -139,6 +139,11 @@ pub enum Texture {
     },
     /// Rings around the primitive's local vertical axis, warped by noise.
     Wood { ring_period_m: f64, amount: f64 },
+    /// Squares of side period/2 in the local x-y plane, alternate ones darkened by `amount`.
+    Checker { period_m: f64, amount: f64 },
+    /// Concentric bands of width period/2 about the local vertical axis (a round rug's
+    /// bands, centred on the room for the room's floor), alternate ones darkened by `amount`.
+    Rings { period_m: f64, amount: f64 },
 }
 
 /// Where the robot goes. Bearings are measured in odom from +x, counter-clockwise.
@@ -222,6 +227,9 @@ impl Scene {
                     ring_period_m,
                     amount,
                 } => positive(&[ring_period_m]) && finite(&[amount]),
+                Texture::Checker { period_m, amount } | Texture::Rings { period_m, amount } => {
+                    positive(&[period_m]) && finite(&[amount])
+                }
             };
             if !ok {
                 return Err(format!(
