@@ -244,7 +244,7 @@ pub fn write_outputs(f: &Fused, report: Option<&Path>, grid: Option<&Path>) -> a
         objloc::npy::write(
             p,
             &[nx, ny, nz],
-            &if std::env::var("XLOGODDS").is_ok() {
+        objloc::npy::write(p, &[nx, ny, nz], &f.outcome.grid.probabilities())
                 let pr = f.outcome.grid.prior_log_odds();
                 f.outcome
                     .grid
