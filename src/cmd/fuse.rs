@@ -241,22 +241,8 @@ pub fn fuse(
 pub fn write_outputs(f: &Fused, report: Option<&Path>, grid: Option<&Path>) -> anyhow::Result<()> {
     if let Some(p) = grid {
         let [nx, ny, nz] = f.outcome.grid.spec.dims;
-        objloc::npy::write(
-            p,
-            &[nx, ny, nz],
         objloc::npy::write(p, &[nx, ny, nz], &f.outcome.grid.probabilities())
-                let pr = f.outcome.grid.prior_log_odds();
-                f.outcome
-                    .grid
-                    .log_odds
-                    .iter()
-                    .map(|l| l - pr)
-                    .collect::<Vec<f32>>()
-            } else {
-                f.outcome.grid.probabilities()
-            },
-        )
-        .with_context(|| format!("writing the grid {}", p.display()))?;
+            .with_context(|| format!("writing the grid {}", p.display()))?;
     }
     if let Some(p) = report {
         objloc::output::write_atomic(p, f.report.to_json().as_bytes())
