@@ -205,6 +205,10 @@ pub struct FrameEval {
     pub matched: usize,
     pub mean_error_m: Option<f64>,
     pub max_error_m: Option<f64>,
+    /// What pose refinement did with the frame (absent when not refining, and for the first
+    /// frame, which anchors the frame of reference).
+    #[serde(default)]
+    pub refinement: Option<crate::refine::Verdict>,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -219,6 +223,9 @@ pub struct Evaluation {
     pub per_frame: Vec<FrameEval>,
     /// Trajectory error at the fused frames, when the session has true poses.
     pub trajectory: Option<TrajectoryError>,
+    /// Why the refined replay was rolled back to /odom, if it was.
+    #[serde(default)]
+    pub rolled_back: Option<String>,
 }
 
 /// Absolute trajectory error (TUM RGB-D style RMSE of positions) at the fused frames, of the
@@ -369,6 +376,7 @@ pub fn evaluate(
                 mean_error_m: (!errs.is_empty())
                     .then(|| errs.iter().sum::<f64>() / errs.len() as f64),
                 max_error_m: errs.iter().copied().reduce(f64::max),
+                refinement: f.correction.map(|c| c.outcome),
             }
         })
         .collect();
@@ -380,7 +388,11 @@ pub fn evaluate(
     };
     Evaluation {
         report: report_name.to_owned(),
-        poses: poses.to_owned(),
+        poses: if report.refinement.as_ref().is_some_and(|r| r.rolled_back) {
+            "odometry (refinement rolled back)".to_owned()
+        } else {
+            poses.to_owned()
+        },
         matches,
         missed: missed.iter().map(|&t| truth[t].name.clone()).collect(),
         spurious: spurious
@@ -390,6 +402,11 @@ pub fn evaluate(
         voxel_iou: voxel_iou(&spec, &report.object_cells, truth),
         per_frame,
         trajectory: trajectory_error(report, truth_track),
+        rolled_back: report
+            .refinement
+            .as_ref()
+            .filter(|r| r.rolled_back)
+            .map(|r| r.reason.clone().unwrap_or_default()),
     }
 }
 

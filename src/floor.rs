@@ -518,4 +518,52 @@ mod tests {
             assert!(map.score(&patch, &off) < at - 1.0, "{at}");
         }
     }
+
+    /// Fit and disagreement on a hand-made map: a black 10 x 10 cell floor seen twice at the
+    /// same pose (no disagreement), then once more with one white cell (variance 0.25 per
+    /// channel in that cell's four bilinear corners); a patch of 4 black and 1 white cells
+    /// fits 4 of 5 within 2 sigmas.
+    #[test]
+    fn fit_counts_cells_within_two_sigmas_and_disagreement_needs_two_views() {
+        let params = FloorParams::default();
+        let c = params.cell_m;
+        let centres: Vec<[f64; 2]> = (0..10)
+            .flat_map(|i| (0..10).map(move |j| [(i as f64 + 0.5) * c, (j as f64 + 0.5) * c]))
+            .collect();
+        let black = FloorPatch {
+            colour: vec![[0.0; 3]; centres.len()],
+            pixels: vec![16; centres.len()],
+            points_m: centres.clone(),
+        };
+        let identity = Iso3::identity();
+        let mut map = FloorMap::new([0.0, 0.0], [1.0, 1.0], params);
+        map.add(&black, &identity);
+        // One view: no cell seen twice, nothing to disagree about.
+        assert_eq!(map.disagreement(), 0.0);
+        map.add(&black, &identity);
+        assert_eq!(map.disagreement(), 0.0);
+        let probe = FloorPatch {
+            colour: vec![[0.0; 3], [0.0; 3], [0.0; 3], [0.0; 3], [1.0; 3]],
+            pixels: vec![16; 5],
+            points_m: vec![[0.2, 0.2], [0.3, 0.3], [0.4, 0.4], [0.5, 0.5], [0.6, 0.3]],
+        };
+        assert_eq!(map.fit(&probe, &identity), Some(0.8));
+        // Far off the map: nothing lands.
+        assert_eq!(map.fit(&probe, &iso_from_xy_yaw(5.0, 5.0, 0.0)), None);
+        // A third view with the black cells white makes them disagree: the capped variance
+        // over the colour noise is positive.
+        let white = FloorPatch {
+            colour: vec![[1.0; 3]; centres.len()],
+            ..black
+        };
+        map.add(&white, &identity);
+        let cap = params.truncate_sigmas * params.truncate_sigmas;
+        let d = map.disagreement();
+        assert!(d > 0.0 && d <= cap, "{d}");
+        // The free function builds the map from (patch, pose) pairs: one view, no cell seen
+        // twice; the same view twice agrees with itself.
+        assert_eq!(disagreement(&[(&white, &identity)], params), 0.0);
+        let twice = disagreement(&[(&white, &identity), (&white, &identity)], params);
+        assert!(twice.abs() < 1e-9, "{twice}");
+    }
 }

@@ -1127,4 +1127,120 @@ mod tests {
         );
         assert_eq!(c, Correction::ZERO);
     }
+
+    /// The gate's chi-square by hand: covariance diag(0.01, 0.04, 0.0025) (plus the floors),
+    /// /odom at the origin, a pose 0.1 m off in x and 0.05 rad in heading:
+    /// 0.1^2 / (0.01 + 1e-4) + 0.05^2 / (0.0025 + 2.5e-5).
+    #[test]
+    fn total_gate_is_the_chi_square_against_odometry() {
+        let gate = TotalGate {
+            odometry: Iso3::identity(),
+            covariance: Matrix3::from_diagonal(&Vector3::new(0.01, 0.04, 0.0025)),
+        };
+        let pose = iso_from_xy_yaw(0.1, 0.0, 0.05);
+        let want = 0.01 / (0.01 + 1e-4) + 0.0025 / (0.0025 + 2.5e-5);
+        assert!(
+            (gate.chi2(&pose) - want).abs() < 1e-9,
+            "{}",
+            gate.chi2(&pose)
+        );
+        assert!(gate.chi2(&Iso3::identity()).abs() < 1e-12);
+        // Headings wrap: a turn of 2 pi is no correction.
+        let around = iso_from_xy_yaw(0.0, 0.0, 2.0 * std::f64::consts::PI);
+        assert!(gate.chi2(&around) < 1e-9);
+    }
+
+    fn cube(side: usize, f: impl Fn(usize, usize, usize) -> f64) -> Vec<(f64, Vector3<f64>)> {
+        let mut out = Vec::new();
+        for a in 0..side {
+            for b in 0..side {
+                for c in 0..side {
+                    let z = Vector3::new(a as f64, b as f64, c as f64) * 0.75;
+                    out.push((f(a, b, c), z));
+                }
+            }
+        }
+        out
+    }
+
+    /// Two bumps 6 steps apart (4.5 sigmas), the second 1.5 below the first with a dip of 10
+    /// between them: separated, margin 1.5. One bump on a slope to the edge: no runner-up.
+    /// A ridge of equal-ish values beside the best: too near, and without prominence.
+    #[test]
+    fn separated_maxima_are_the_prominent_far_peaks() {
+        let two = cube(9, |a, b, c| {
+            let d1 =
+                ((a as f64 - 1.0).powi(2) + (b as f64 - 4.0).powi(2) + (c as f64 - 4.0).powi(2))
+                    .sqrt();
+            let d2 =
+                ((a as f64 - 7.0).powi(2) + (b as f64 - 4.0).powi(2) + (c as f64 - 4.0).powi(2))
+                    .sqrt();
+            (-10.0 * d1.min(3.0) / 3.0).max(-1.5 - 10.0 * d2.min(3.0) / 3.0)
+        });
+        let (margin, sigmas) = separated_margin(&two, 9);
+        assert!((margin - 1.5).abs() < 1e-9, "{margin}");
+        assert!((sigmas - 6.0 * 0.75).abs() < 1e-9, "{sigmas}");
+        let slope = cube(9, |a, b, c| -((a + b + c) as f64));
+        assert_eq!(separated_margin(&slope, 9).0, f64::INFINITY);
+        // A ridge along c at (4, 4): bumps of 0.1 between neighbours, none prominent.
+        let ridge = cube(9, |a, b, c| {
+            -((a as f64 - 4.0).powi(2) + (b as f64 - 4.0).powi(2)) - 0.1 * (c % 2) as f64
+        });
+        assert_eq!(separated_margin(&ridge, 9).0, f64::INFINITY);
+    }
+
+    /// Rays that meet exactly score 0; with one frame's ray 0.3 m off the point (24 px at
+    /// 2.8 m) that frame scores the cap, and a frame without a ray near the object too.
+    #[test]
+    fn consistency_is_the_mean_capped_ray_chi_square() {
+        let cam = Camera::with_hfov(256, 240, 1.05);
+        let mount = camera_mount([0.2, 0.0, 1.2], 0.26);
+        let target = Vector3::new(0.1, -0.2, 0.45);
+        let rays = |off: f64| {
+            let mut seen = Vec::new();
+            for (k, a) in [0.0f64, 0.8, 1.6, 2.4].iter().enumerate() {
+                let (x, y) = (2.8 * a.cos(), 2.8 * a.sin());
+                let cam_pose = iso_from_xy_yaw(x, y, (-y).atan2(-x)) * mount;
+                let aim = if k == 3 {
+                    target + (cam_pose.rotation * Vector3::x()) * off
+                } else {
+                    target
+                };
+                let (u, v) = cam
+                    .project(&(cam_pose.inverse() * Point3::from(aim)))
+                    .unwrap();
+                seen.extend(sightings(k, &[[u, v]], &cam, &cam_pose));
+            }
+            seen
+        };
+        let seed = [[0.05, -0.15, 0.4]];
+        let exact = Consistency::of(&seed, &rays(0.0), cam.fx, GATE_M);
+        assert_eq!((exact.objects, exact.rays), (1, 4));
+        assert!(exact.mean_chi2 < 1e-9, "{exact:?}");
+        let off = Consistency::of(&seed, &rays(0.3), cam.fx, GATE_M);
+        assert!(off.worse_than(&exact) && !exact.worse_than(&off), "{off:?}");
+        // Gate smaller than the miss: the fourth frame has no ray for the object; it scores
+        // the cap, the other three (which then meet exactly) nothing.
+        let gated = Consistency::of(&seed, &rays(0.3), cam.fx, 0.2);
+        assert!(
+            (gated.mean_chi2 - MAX_RAY_CHI2 / 4.0).abs() < 1e-6,
+            "{gated:?}"
+        );
+    }
+
+    #[test]
+    fn verdicts_serialise_in_kebab_case_and_say_what_was_measured() {
+        let json = serde_json::to_string(&Verdict::RolledBack).unwrap();
+        assert_eq!(json, "\"rolled-back\"");
+        assert_eq!(Verdict::NoEvidence.label(), "no-evidence");
+        assert!(Verdict::Accepted.measured() && Verdict::Insignificant.measured());
+        assert!(!Verdict::Gated.measured() && !Verdict::RolledBack.measured());
+        // A report without the field (before verdicts) reads as no evidence.
+        let old: Correction = serde_json::from_str(
+            r#"{"dx_m":0.0,"dy_m":0.0,"dyaw_rad":0.0,"gain":0.0,"anchors":0}"#,
+        )
+        .unwrap();
+        assert_eq!(old.outcome, Verdict::NoEvidence);
+        assert_eq!(old.runner_up_margin, f64::INFINITY);
+    }
 }

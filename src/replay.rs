@@ -615,7 +615,7 @@ pub fn replay(
         )
         .map_err(|e| ctx.observer_err(None, &e))?;
     }
-    let first = run_pass(&ctx, options, observers)?;
+    let first = run_pass(&ctx, options, observers, None)?;
     let mut refinement = None;
     let last = if options.refine_poses {
         let check = check_refinement(&ctx, &first);
@@ -630,18 +630,7 @@ pub fn replay(
                 refine_poses: false,
                 ..options.clone()
             };
-            let mut second = run_pass(&ctx, &plain, observers)?;
-            for (s, f) in second.per_frame.iter_mut().zip(&first.per_frame) {
-                s.correction = f.correction.map(|c| match c.outcome {
-                    Verdict::Accepted => Correction {
-                        applied: false,
-                        outcome: Verdict::RolledBack,
-                        ..c
-                    },
-                    _ => c,
-                });
-            }
-            second
+            run_pass(&ctx, &plain, observers, Some(&first))?
         } else {
             first
         }
@@ -837,10 +826,13 @@ struct Tracker {
 /// on any of them (docs/fuser.md).
 pub const MAX_FLOOR_FAILURES: usize = 2;
 
+/// One pass over the frames; `rolled_back` is the refined pass this one replaces at /odom,
+/// whose corrections its frames carry as [`Verdict::RolledBack`] (those it had accepted).
 fn run_pass(
     ctx: &Context<'_>,
     options: &FuseOptions,
     observers: &mut [&mut dyn Observer],
+    rolled_back: Option<&Pass>,
 ) -> Result<Pass, ReplayError> {
     let fuser = Fuser::new(ctx.spec, ctx.prior, options.clone()).map_err(|e| ctx.grid_err(e))?;
     let floor_map = floor_params(options).map(|fp| {
@@ -866,18 +858,40 @@ fn run_pass(
         total_cov: nalgebra::Matrix3::zeros(),
     };
     for index in 0..ctx.prepared.len() {
-        step(ctx, options, &mut pass, &mut tracker, index, observers)?;
+        let undone = rolled_back
+            .and_then(|r| r.per_frame.get(index))
+            .and_then(|f| f.correction)
+            .map(|c| match c.outcome {
+                Verdict::Accepted => Correction {
+                    applied: false,
+                    outcome: Verdict::RolledBack,
+                    ..c
+                },
+                _ => c,
+            });
+        step(
+            ctx,
+            options,
+            &mut pass,
+            &mut tracker,
+            index,
+            undone,
+            observers,
+        )?;
     }
     Ok(pass)
 }
 
-/// Localises (when refining), fuses and observes frame `index`.
+/// Localises (when refining), fuses and observes frame `index`; `undone` is the correction
+/// of a rolled-back pass the frame carries instead (it is fused at /odom).
+#[allow(clippy::too_many_arguments)]
 fn step(
     ctx: &Context<'_>,
     options: &FuseOptions,
     pass: &mut Pass,
     tracker: &mut Tracker,
     index: usize,
+    undone: Option<Correction>,
     observers: &mut [&mut dyn Observer],
 ) -> Result<(), ReplayError> {
     let p = &ctx.prepared[index];
@@ -927,7 +941,7 @@ fn step(
         }
         _ => {
             pass.poses.push(p.odometry);
-            None
+            undone
         }
     };
     let odom_from_base = pass.poses[index];
@@ -944,7 +958,7 @@ fn step(
     }
     // A frame whose pose was measured (corrected, or found where it was predicted) is not
     // blurred: the measurement replaces the motion model's spread.
-    let localised = correction.is_some_and(|c| c.outcome.measured());
+    let localised = options.refine_poses && correction.is_some_and(|c| c.outcome.measured());
     let segments = fuse_one(
         &mut pass.fuser,
         data,

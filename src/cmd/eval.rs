@@ -124,16 +124,22 @@ fn print_eval(e: &Evaluation) {
             t.frames, t.odometry_ate_m, t.odometry_max_m, e.poses, t.fused_ate_m
         );
     }
+    if let Some(why) = &e.rolled_back {
+        println!("  ROLLED BACK to /odom: {why}");
+    }
     println!("  after each frame:");
     for f in &e.per_frame {
         println!(
-            "    frame {:>3}: {} object(s), {} matched, mean error {}",
+            "    frame {:>3}: {} object(s), {} matched, mean error {}{}",
             f.index,
             f.objects,
             f.matched,
             f.mean_error_m
                 .map(|x| format!("{x:.3} m"))
-                .unwrap_or_else(|| "-".into())
+                .unwrap_or_else(|| "-".into()),
+            f.refinement
+                .map(|v| format!(", pose {}", v.label()))
+                .unwrap_or_default()
         );
     }
 }

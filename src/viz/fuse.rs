@@ -14,6 +14,7 @@ use super::{TIMELINE_FRAME, TIMELINE_LOG_TIME, VizError, log_err, viridis};
 use crate::geometry::{Camera, Iso3, iso_from_pose, yaw_of};
 use crate::grid::{Grid, sigmoid};
 use crate::objects::Object;
+use crate::refine::Verdict;
 use crate::replay::{FrameStep, Observer, SessionData, TileProbs};
 use crate::session::Rgb8;
 use rayon::prelude::*;
@@ -55,6 +56,22 @@ const TRUTH_TRACK: &str = "world/robot/ground_truth";
 const REFINED_TRACKS: [&str; 2] = ["world/robot/refined", "world/robot/refined/frames"];
 /// Rerun's implicit frame of the `world` entity.
 const WORLD_FRAME: &str = "tf#/world";
+/// One line per refined frame: the verdict and its numbers; the rollback, when it happens.
+const VERDICT_LOG: &str = "refinement";
+
+/// Colour of a frame's refinement verdict on the refined track: green when the pose was
+/// measured, grey without evidence, yellow/orange when the correction was refused, red when
+/// rolled back (visible at a glance).
+pub fn verdict_rgb(v: Verdict) -> [u8; 3] {
+    match v {
+        Verdict::Accepted => [60, 200, 90],
+        Verdict::Insignificant => [150, 220, 160],
+        Verdict::NoEvidence => [150, 150, 150],
+        Verdict::Ambiguous => [240, 220, 40],
+        Verdict::Gated => [255, 150, 30],
+        Verdict::RolledBack => [230, 30, 30],
+    }
+}
 
 /// Streams a replay to a recording.
 pub struct FuseViz {
@@ -62,6 +79,8 @@ pub struct FuseViz {
     options: VizOptions,
     /// Refined robot positions of the frames so far (empty unless refining).
     refined_track: Vec<[f32; 3]>,
+    /// The colour of each refined position's verdict.
+    refined_colors: Vec<rerun::Color>,
     /// The first frame's position: it anchors the refined trajectory, which starts there
     /// although that frame carries no correction.
     first_position: Option<[f32; 3]>,
@@ -73,6 +92,7 @@ impl FuseViz {
             rec,
             options,
             refined_track: Vec::new(),
+            refined_colors: Vec::new(),
             first_position: None,
         }
     }
@@ -464,7 +484,14 @@ impl FuseViz {
                     self.refined_track.push(first);
                 }
             }
+            if self.refined_colors.len() < self.refined_track.len() {
+                // The anchor frame: measured by definition.
+                let [r, g, b] = verdict_rgb(Verdict::Accepted);
+                self.refined_colors.push(rerun::Color::from_rgb(r, g, b));
+            }
             self.refined_track.push(here);
+            let [r, g, b] = verdict_rgb(c.outcome);
+            self.refined_colors.push(rerun::Color::from_rgb(r, g, b));
             let color = rerun::Color::from_rgb(REFINED_RGB[0], REFINED_RGB[1], REFINED_RGB[2]);
             rec.log(
                 REFINED_TRACKS[0],
@@ -474,8 +501,30 @@ impl FuseViz {
             rec.log(
                 REFINED_TRACKS[1],
                 &rerun::Points3D::new(self.refined_track.clone())
-                    .with_colors([color])
+                    .with_colors(self.refined_colors.clone())
                     .with_radii([0.03]),
+            )
+            .map_err(log_err)?;
+            let level = match c.outcome {
+                Verdict::Accepted | Verdict::Insignificant | Verdict::NoEvidence => {
+                    rerun::TextLogLevel::INFO
+                }
+                Verdict::Ambiguous | Verdict::Gated => rerun::TextLogLevel::WARN,
+                Verdict::RolledBack => rerun::TextLogLevel::ERROR,
+            };
+            rec.log(
+                VERDICT_LOG,
+                &rerun::TextLog::new(format!(
+                    "frame {}: {} (gain {:.1}, {} landmark(s), {} floor cells, total chi-square {:.1})",
+                    step.index,
+                    c.outcome.label(),
+                    c.gain,
+                    c.anchors,
+                    c.floor_cells,
+                    c.total_chi2
+                ))
+                .with_level(level)
+                .with_color(rerun::Color::from_rgb(r, g, b)),
             )
             .map_err(log_err)?;
             let o = step.odometry.translation.vector;
@@ -584,6 +633,22 @@ impl Observer for FuseViz {
         grid: &Grid,
     ) -> anyhow::Result<()> {
         Ok(self.frame(data, step, grid)?)
+    }
+    fn on_rollback(&mut self, _data: &SessionData) -> anyhow::Result<()> {
+        // The frames come again at /odom, logged over the refined pass at the same times; the
+        // refined track restarts with each frame's verdict (rolled-back frames red).
+        self.refined_track.clear();
+        self.refined_colors.clear();
+        self.rec
+            .log(
+                VERDICT_LOG,
+                &rerun::TextLog::new(
+                    "ROLLED BACK: the refined poses explained the frames worse than /odom; the replay is fused again at /odom",
+                )
+                .with_level(rerun::TextLogLevel::ERROR),
+            )
+            .map_err(log_err)?;
+        Ok(())
     }
 }
 
