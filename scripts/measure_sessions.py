@@ -9,6 +9,9 @@ Sets (each skipped with a message where its data is absent):
   heldout  our simulator's held-out-style tours (recorded into target/measure-heldout as
            scripts/measure_heldout.sh does: seeds 21/22, default and 5 %/3 % noise)
   foreign  ../shared/foreign/sessions (another renderer; --bounds from its manifest)
+  repeating  exact-odometry tours over checker, ring, stripe and tile floors (ATE must stay
+           within 0.02 m of /odom's, which is 0)
+TRAIN_FLAGS in the environment are passed to `objloc train`.
 
 Usage: scripts/measure_sessions.py [--sets shipped,heldout,foreign] [--modes default,objects,odom]
        [--json OUT.json] [-- extra fuse flags...]        (from the repository root)
@@ -40,9 +43,15 @@ def run(args, **kw):
     return r.stdout
 
 
+TRAIN_FLAGS = os.environ.get("TRAIN_FLAGS", "").split()
+
+
 def train(session, model):
+    """Trains (once per binary and TRAIN_FLAGS, e.g. TRAIN_FLAGS="--train-stride 2")."""
+    if TRAIN_FLAGS:
+        model = model.replace(".json", "-" + "_".join(f.strip("-") for f in TRAIN_FLAGS) + ".json")
     if not os.path.exists(model) or os.path.getmtime(model) < os.path.getmtime(BIN):
-        run([BIN, "train", session, "-o", model, "--no-rerun"])
+        run([BIN, "train", session, "-o", model, "--no-rerun"] + TRAIN_FLAGS)
     return model
 
 
@@ -153,6 +162,7 @@ def main():
     ap.add_argument("--sets", default="shipped,heldout,foreign")
     ap.add_argument("--modes", default="default,objects,odom")
     ap.add_argument("--json")
+    ap.add_argument("--markdown", help="also write the tables as markdown to this file")
     ap.add_argument("-j", type=int, default=2)
     ap.add_argument("extra", nargs="*")
     a = ap.parse_args()
@@ -208,6 +218,39 @@ def main():
             "%-26s" % ("%.3f (%d)" % (sum(summary[m]["errs"]) / max(1, len(summary[m]["errs"])), len(summary[m]["errs"]))) for m in modes)))
     if a.json:
         json.dump(results, open(a.json, "w"), indent=1)
+    if a.markdown:
+        write_markdown(results, modes, a.markdown)
+
+
+def cell(res):
+    """A markdown cell: errors, missed/spurious, the refinement's verdict counts, rollback."""
+    text = ",".join("%.3f" % d for d in res["errors"]) or "-"
+    if res["missed"]:
+        text += ", %d missed" % res["missed"]
+    if res["spurious"]:
+        text += ", %d spurious" % res["spurious"]
+    if res.get("rolled_back"):
+        text += " (rolled back)"
+    return ("**%s**" % text) if ok(res) else text
+
+
+def write_markdown(results, modes, path):
+    names = {"default": "default", "objects": "`--no-floor`", "odom": "`--no-refine-poses`"}
+    out = []
+    for set_name in dict.fromkeys(r["set"] for r in results):
+        rows = [r for r in results if r["set"] == set_name]
+        out.append("| %s session | %s | /odom ATE | fused ATE (default) |" % (set_name, " | ".join(names[m] for m in modes)))
+        out.append("|" + "---|" * (len(modes) + 3))
+        for r in rows:
+            d = r.get("default") or r[modes[0]]
+            out.append("| %s | %s | %s | %s |" % (
+                r["session"], " | ".join(cell(r[m]) for m in modes),
+                "%.3f" % d["odom_ate"] if d.get("odom_ate") is not None else "-",
+                "%.3f" % d["ate"] if d.get("ate") is not None else "-"))
+        counts = " | ".join("%d of %d" % (sum(ok(r[m]) for r in rows), len(rows)) for m in modes)
+        out.append("| right count, all within 0.12 m | %s | | |" % counts)
+        out.append("")
+    open(path, "w").write("\n".join(out))
 
 
 if __name__ == "__main__":

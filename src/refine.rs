@@ -400,6 +400,31 @@ fn ray_distance(s: &Sighting, p: &Vector3<f64>) -> f64 {
     (d - s.direction * along).norm()
 }
 
+/// Of `sightings` (in frame order), the one passing closest to `c` per frame, within `gate_m`,
+/// with its distance.
+fn closest_per_frame<'a>(
+    c: &Vector3<f64>,
+    sightings: &'a [Sighting],
+    gate_m: f64,
+) -> Vec<(f64, &'a Sighting)> {
+    let mut chosen: Vec<(f64, &Sighting)> = Vec::new();
+    for s in sightings {
+        let d = ray_distance(s, c);
+        if d > gate_m {
+            continue;
+        }
+        match chosen.last_mut() {
+            Some(last) if last.1.frame == s.frame => {
+                if d < last.0 {
+                    *last = (d, s);
+                }
+            }
+            _ => chosen.push((d, s)),
+        }
+    }
+    chosen
+}
+
 /// A landmark: a point in `odom` and the covariance of its position (m^2).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Landmark {
@@ -422,22 +447,7 @@ pub fn landmarks(
     let mut out = Vec::new();
     for c in object_centroids {
         let c = Vector3::new(c[0], c[1], c[2]);
-        // Sightings are in frame order, so one pass keeps the closest per frame.
-        let mut chosen: Vec<(f64, &Sighting)> = Vec::new();
-        for s in sightings {
-            let d = ray_distance(s, &c);
-            if d > GATE_M {
-                continue;
-            }
-            match chosen.last_mut() {
-                Some(last) if last.1.frame == s.frame => {
-                    if d < last.0 {
-                        *last = (d, s);
-                    }
-                }
-                _ => chosen.push((d, s)),
-            }
-        }
+        let mut chosen = closest_per_frame(&c, sightings, GATE_M);
         // Rays that disagree with the rest (a cluster that merged two objects, a shadow) are
         // dropped one at a time, worst first, until every ray fits.
         loop {
@@ -496,21 +506,7 @@ impl Consistency {
         let (mut objects, mut rays, mut sum) = (0, 0, 0.0);
         for c in seeds {
             let c = Vector3::new(c[0], c[1], c[2]);
-            let mut chosen: Vec<(f64, &Sighting)> = Vec::new();
-            for s in sightings {
-                let d = ray_distance(s, &c);
-                if d > gate_m {
-                    continue;
-                }
-                match chosen.last_mut() {
-                    Some(last) if last.1.frame == s.frame => {
-                        if d < last.0 {
-                            *last = (d, s);
-                        }
-                    }
-                    _ => chosen.push((d, s)),
-                }
-            }
+            let chosen = closest_per_frame(&c, sightings, gate_m);
             let Some(lm) = triangulate(&chosen, &c, focal_px) else {
                 continue;
             };

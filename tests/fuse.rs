@@ -91,7 +91,8 @@ fn demo_locates_the_chair_and_writes_its_outputs() {
     // Default options refine the poses: measured 0.016 m; the target is 0.08 m.
     assert!(err < 0.08, "{line}");
     assert!(
-        text.contains("poses refined: ") && text.contains("trajectory: /odom ATE"),
+        text.contains("poses refined against the objects and the floor: ")
+            && text.contains("trajectory: /odom ATE"),
         "{text}"
     );
     let r = report(&out_dir.join("report.json"));
