@@ -8,9 +8,9 @@
 use std::hint::black_box;
 use std::time::Instant;
 
-use objloc::geometry::{Camera, camera_mount, iso_from_xy_yaw};
-use objloc::grid::{Grid, GridSpec, TileEvidence};
-use objloc::motion::{BlurMode, Blurrer};
+use objloc_core::fuse::grid::{Grid, GridSpec, TileEvidence};
+use objloc_core::fuse::motion::{BlurMode, Blurrer};
+use objloc_core::types::geometry::{Camera, camera_mount, iso_from_xy_yaw};
 
 fn median_ms(reps: usize, mut f: impl FnMut()) -> f64 {
     let mut t: Vec<f64> = (0..reps)
@@ -25,7 +25,14 @@ fn median_ms(reps: usize, mut f: impl FnMut()) -> f64 {
 }
 
 /// A grid of n^3 cells of 4 cm centred on the origin, a camera 2 m away looking at it.
-fn setup(n: usize) -> (Grid, objloc::geometry::Iso3, Camera, TileEvidence) {
+fn setup(
+    n: usize,
+) -> (
+    Grid,
+    objloc_core::types::geometry::Iso3,
+    Camera,
+    TileEvidence,
+) {
     let half = n as f64 * 0.04 / 2.0;
     let spec = GridSpec::from_bounds([-half, -half, 0.0], [half, half, 2.0 * half], 0.04).unwrap();
     let grid = Grid::new(spec, 0.005).unwrap();
@@ -42,11 +49,11 @@ fn setup(n: usize) -> (Grid, objloc::geometry::Iso3, Camera, TileEvidence) {
 /// The whole chair tour: replay without Rerun, and with the Rerun stream saved to an .rrd
 /// (the cost of streaming), medians of 5.
 fn chair_tour() {
-    use objloc::dataset::load_session;
-    use objloc::model::{TrainConfig, examples, fit_model};
-    use objloc::replay::{FuseOptions, replay};
-    use objloc::session::{SessionReader, Topics};
     use objloc::viz::{self, VizArgs};
+    use objloc_core::fuse::replay::{FuseOptions, replay};
+    use objloc_core::io::session::{SessionReader, Topics};
+    use objloc_core::learn::dataset::load_session;
+    use objloc_core::learn::model::{TrainConfig, examples, fit_model};
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
     let train = load_session(
         &root.join("recordings/chair-train.mcap"),

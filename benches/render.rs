@@ -5,7 +5,7 @@
 
 use std::time::Instant;
 
-use objloc::sim::{
+use objloc_core::sim::{
     FrameJitter, Kind, Renderer, SimOptions, builtin_scene, encode_png, iso_from_pose2, plan_stops,
 };
 
@@ -21,7 +21,7 @@ fn main() {
     opts.stops = per_batch;
     let stops = plan_stops(&scene, &opts).expect("stops");
     let renderer = Renderer::new(&scene, None);
-    let mount = objloc::sim::base_from_optical(&scene);
+    let mount = objloc_core::sim::base_from_optical(&scene);
     let mut fps = Vec::new();
     let mut bytes = 0usize;
     for b in 0..batches {

@@ -1,6 +1,6 @@
 //! Soak benchmark (`cargo bench --bench soak`): records a long simulated chair tour
 //! (`OBJLOC_SOAK_STOPS` stops, 200 by default) in a temp dir, trains on the shipped
-//! chair-train recording, replays the tour through `objloc::replay::replay` with an observer
+//! chair-train recording, replays the tour through `objloc_core::fuse::replay::replay` with an observer
 //! that reads this process's RSS (`/proc/self/status` VmRSS and VmHWM) every 50 frames, and
 //! prints frames/s, the peak RSS and the RSS at frame 50, 100, 150, ... so that growth across
 //! frames shows.
@@ -11,12 +11,12 @@
 use std::path::Path;
 use std::time::Instant;
 
-use objloc::dataset::load_session;
-use objloc::grid::Grid;
-use objloc::model::{TrainConfig, examples, fit_model};
-use objloc::replay::{FrameStep, FuseOptions, Observer, SessionData, replay};
-use objloc::session::{SessionReader, Topics};
-use objloc::sim::{Kind, SimOptions, builtin_scene, record};
+use objloc_core::fuse::grid::Grid;
+use objloc_core::fuse::replay::{FrameStep, FuseOptions, Observer, SessionData, replay};
+use objloc_core::io::session::{SessionReader, Topics};
+use objloc_core::learn::dataset::load_session;
+use objloc_core::learn::model::{TrainConfig, examples, fit_model};
+use objloc_core::sim::{Kind, SimOptions, builtin_scene, record};
 
 const EVERY_FRAMES: usize = 50;
 

@@ -8,11 +8,11 @@
 use std::path::Path;
 use std::time::{Duration, Instant};
 
-use objloc::dataset::{LoadedSession, SessionFrame, load_session};
-use objloc::features::FeatureKind;
-use objloc::model::{TrainConfig, examples, fit_model};
-use objloc::msgs::RegionOfInterest;
-use objloc::session::{Rgb8, Topics};
+use objloc_core::io::msgs::RegionOfInterest;
+use objloc_core::io::session::{Rgb8, Topics};
+use objloc_core::learn::dataset::{LoadedSession, SessionFrame, load_session};
+use objloc_core::learn::features::FeatureKind;
+use objloc_core::learn::model::{TrainConfig, examples, fit_model};
 
 const RUNS: usize = 15;
 

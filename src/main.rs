@@ -2,6 +2,7 @@
 //! one line with its context chain and exits 1. All logic lives in the library.
 
 mod cmd;
+mod viz;
 
 use clap::Parser;
 

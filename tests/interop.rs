@@ -16,8 +16,8 @@ use std::ffi::OsStr;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
-use objloc::msgs::{GroundTruth, ObjectLabel, RosMessage, schema_text};
-use objloc::session::{SessionMsg, SessionReader, Topics};
+use objloc_core::io::msgs::{GroundTruth, ObjectLabel, RosMessage, schema_text};
+use objloc_core::io::session::{SessionMsg, SessionReader, Topics};
 use serde_json::{Value, json};
 
 use common::pyenv::{

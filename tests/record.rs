@@ -8,8 +8,8 @@ use std::process::{Command, Output};
 use std::time::{Duration, Instant};
 
 use nalgebra::Point3;
-use objloc::geometry::{Camera, iso_from_parts, iso_from_pose};
-use objloc::session::{SessionMsg, SessionReader, Topics};
+use objloc_core::io::session::{SessionMsg, SessionReader, Topics};
+use objloc_core::types::geometry::{Camera, iso_from_parts, iso_from_pose};
 
 const BIN: &str = env!("CARGO_BIN_EXE_objloc");
 
@@ -82,7 +82,7 @@ fn shipped_recordings_regenerate_byte_identically() {
 
 struct FrameView {
     stamp_ns: i64,
-    regions: Vec<(String, objloc::msgs::RegionOfInterest)>,
+    regions: Vec<(String, objloc_core::io::msgs::RegionOfInterest)>,
 }
 
 /// Projects each ground-truth box centre into every tour frame with /odom (or, with
@@ -92,7 +92,7 @@ fn project_truth(path: &Path, use_truth: bool) -> Vec<(i64, String, (f64, f64), 
     let reader = SessionReader::open(path, Topics::default()).unwrap();
     let mut mount = None;
     let mut camera = None;
-    let mut odom: Vec<(i64, objloc::geometry::Iso3)> = Vec::new();
+    let mut odom: Vec<(i64, objloc_core::types::geometry::Iso3)> = Vec::new();
     let mut boxes = Vec::new();
     let mut frames: Vec<FrameView> = Vec::new();
     for m in reader.messages() {

@@ -19,11 +19,11 @@ use std::process::{Command, Stdio};
 use std::sync::{OnceLock, mpsc};
 use std::time::{Duration, Instant};
 
-use objloc::msgs::{
+use objloc_core::io::msgs::{
     CameraInfo, CompressedImage, Header, Image, ObjectLabel, Odometry, RegionOfInterest,
     RosMessage, TfMessage, TransformStamped, Twist, TwistStamped, schema_text,
 };
-use objloc::session::{SessionReader, Topics, fmt_ns};
+use objloc_core::io::session::{SessionReader, Topics, fmt_ns};
 use proptest::prelude::*;
 
 use common::{
@@ -550,7 +550,7 @@ fn truncated_at_20_seeded_offsets() {
     let dir = tempfile::tempdir().unwrap();
     let bytes = std::fs::read(repo().join("recordings/chair-tour.mcap")).unwrap();
     let path = dir.path().join("cut.mcap");
-    let mut rng = objloc::rng::SplitMix64::new(7);
+    let mut rng = objloc_core::types::rng::SplitMix64::new(7);
     let (mut partial, mut refused) = (0, 0);
     for _ in 0..20 {
         let cut = (rng.next_u64() % bytes.len() as u64) as usize;
@@ -609,7 +609,7 @@ fn chunk_bit_flips_with_and_without_crc() {
             "{name}: {} chunks",
             summary.chunk_indexes.len()
         );
-        let mut rng = objloc::rng::SplitMix64::new(11);
+        let mut rng = objloc_core::types::rng::SplitMix64::new(11);
         let (mut ok, mut refused) = (0, 0);
         for c in &summary.chunk_indexes {
             for _ in 0..4 {
@@ -975,7 +975,7 @@ fn grids_beyond_the_memory_limit_are_refused_before_allocating() {
         &path,
         &["--bounds", "-1000,-1000,0,1000,1000,10"],
     );
-    let limit_mib = objloc::grid::MAX_GRID_BYTES >> 20;
+    let limit_mib = objloc_core::fuse::grid::MAX_GRID_BYTES >> 20;
     let line = assert_error(&run, &path, &["MiB", &limit_mib.to_string()]);
     assert!(
         line.contains("--bounds") || line.contains("--voxel"),
@@ -1181,7 +1181,7 @@ fn corpora() -> &'static [Corpus] {
     })
 }
 
-fn decoded(reader: &SessionReader, raw: &objloc::session::RawMessage) -> String {
+fn decoded(reader: &SessionReader, raw: &objloc_core::io::session::RawMessage) -> String {
     format!("{:?}", reader.decode(raw).map_err(|e| e.to_string()))
 }
 
@@ -1213,7 +1213,7 @@ fn check_chunk_mutation(
         Ok(r) => r,
     };
     // Errors are fine; panics are not.
-    let _ = objloc::inspect::summarize_reader(&reader);
+    let _ = objloc_core::io::inspect::summarize_reader(&reader);
     prop_assert!(
         !reader.warnings.iter().any(|w| w.contains("truncated")),
         "a complete file read as truncated: {:?}",
@@ -1282,7 +1282,7 @@ proptest! {
         }
         let started = Instant::now();
         if let Ok(r) = SessionReader::from_bytes(Path::new(corpus.name), &bytes, Topics::default()) {
-            let _ = objloc::inspect::summarize_reader(&r);
+            let _ = objloc_core::io::inspect::summarize_reader(&r);
             for m in r.messages() {
                 let _ = m;
             }
@@ -1306,12 +1306,12 @@ proptest! {
         let dir = tempfile::tempdir().expect("temp dir");
         let path = dir.path().join("m.json");
         std::fs::write(&path, &bytes).expect("write");
-        match objloc::model::Model::load(&path) {
+        match objloc_core::learn::model::Model::load(&path) {
             Err(e) => prop_assert!(e.to_string().contains("m.json"), "{}", e),
             Ok(m) => {
                 // Accepted: it must classify a frame without panicking.
                 let img = image::load_from_memory(&fixture_png(0)).expect("png").into_rgb8();
-                let rgb = objloc::session::Rgb8 { width: img.width(), height: img.height(), data: img.into_raw() };
+                let rgb = objloc_core::io::session::Rgb8 { width: img.width(), height: img.height(), data: img.into_raw() };
                 let p = m.predict(&rgb);
                 let _ = p;
             }

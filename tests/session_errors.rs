@@ -15,8 +15,10 @@ use std::process::{Command, Stdio};
 use std::sync::mpsc;
 use std::time::Duration;
 
-use objloc::msgs::{CompressedImage, Header, Odometry, Pose, RosMessage, Twist, schema_text};
-use objloc::session::SessionWriter;
+use objloc_core::io::msgs::{
+    CompressedImage, Header, Odometry, Pose, RosMessage, Twist, schema_text,
+};
+use objloc_core::io::session::SessionWriter;
 
 use common::{T0_NS, fixture_png, write_fixture_session};
 
@@ -366,7 +368,10 @@ fn chunk_crc_mismatch_is_one_line_naming_the_last_good_message() {
         &path,
         &[
             "topic /camera/image/compressed",
-            &format!("at log time {}", objloc::session::fmt_ns(first_end_ns)),
+            &format!(
+                "at log time {}",
+                objloc_core::io::session::fmt_ns(first_end_ns)
+            ),
             "damaged data after byte",
         ],
     );
@@ -516,7 +521,7 @@ fn image_size_differing_from_camera_info_is_a_warning() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("size.mcap");
     let mut w = SessionWriter::create(&path).unwrap();
-    let info = objloc::msgs::CameraInfo::pinhole(
+    let info = objloc_core::io::msgs::CameraInfo::pinhole(
         Header::new(T0_NS, "camera_optical_frame"),
         640,
         480,

@@ -8,8 +8,8 @@
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
-use objloc::msgs::{CompressedImage, Header, ObjectLabel, RegionOfInterest};
-use objloc::session::SessionWriter;
+use objloc_core::io::msgs::{CompressedImage, Header, ObjectLabel, RegionOfInterest};
+use objloc_core::io::session::SessionWriter;
 
 const W: u32 = 256;
 const H: u32 = 240;
@@ -207,7 +207,7 @@ fn train_then_predict_finds_the_box() {
     let hash = meta["sessions"][0]["sha256"].as_str().unwrap();
     assert_eq!(
         hash,
-        objloc::dataset::sha256_hex(&std::fs::read(&train).unwrap())
+        objloc_core::learn::dataset::sha256_hex(&std::fs::read(&train).unwrap())
     );
     let auc = meta["test_metrics"]["roc_auc"].as_f64().unwrap();
     assert!(auc > 0.97, "test AUC {auc}");
@@ -258,9 +258,10 @@ fn train_then_predict_finds_the_box() {
     // 13..=16 and rows 5..=11 whole: 4 x 7 = 28; box 2 (x 10..46, y 150..198) holds cols
     // 2..=4 and rows 19..=23: 3 x 5 = 15; total 43.
     assert!(text.contains("2880 tiles, 43 positive"), "{text}");
-    let (probs, data) = objloc::npy::read_f32(&pred.join("probs.npy")).unwrap();
+    let (probs, data) = objloc_core::io::npy::read_f32(&pred.join("probs.npy")).unwrap();
     assert_eq!(probs, vec![4, 30, 32]);
-    let (tile_shape, tile_data) = objloc::npy::read_f32(&pred.join("tile_probs.npy")).unwrap();
+    let (tile_shape, tile_data) =
+        objloc_core::io::npy::read_f32(&pred.join("tile_probs.npy")).unwrap();
     assert_eq!(tile_shape, vec![4, 30, 32]);
     // The two heads are two trees: their maps differ.
     assert_ne!(tile_data, data);

@@ -14,11 +14,11 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
 use common::pyenv::{repo_dir, run_checked};
-use objloc::model::Model;
-use objloc::replay::{FuseOptions, Observer, replay};
-use objloc::session::{SessionReader, Topics};
 use objloc::viz::fuse::{FuseViz, VizOptions};
 use objloc::viz::{self, Target, VizArgs};
+use objloc_core::fuse::replay::{FuseOptions, Observer, replay};
+use objloc_core::io::session::{SessionReader, Topics};
+use objloc_core::learn::model::Model;
 
 /// The venv's `rerun` CLI (the venv is created on first use, see tests/common/pyenv.rs).
 fn rerun_cli() -> PathBuf {
@@ -321,7 +321,7 @@ fn train_recording_has_the_tree_graph_and_frames() {
     let dir = tempfile::tempdir().unwrap();
     let model_path = trained_model(dir.path());
     let model = Model::load(&model_path).unwrap();
-    let session = objloc::dataset::load_session(
+    let session = objloc_core::learn::dataset::load_session(
         &repo_dir().join("recordings/chair-train.mcap"),
         Topics::default(),
         None,

@@ -7,9 +7,9 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 
-use objloc::dataset::load_session;
-use objloc::eval::{Evaluation, evaluate, true_objects};
-use objloc::model::{TrainConfig, examples, fit_model};
+use objloc_core::learn::dataset::load_session;
+use objloc_core::learn::model::{TrainConfig, examples, fit_model};
+use objloc_core::out::eval::{Evaluation, evaluate, true_objects};
 
 use super::TopicArgs;
 use super::fuse::{FuseArgs, Fused, fuse, print_summary, write_outputs};
@@ -34,7 +34,7 @@ pub struct Args {
     #[command(flatten)]
     pub topics: TopicArgs,
     #[command(flatten)]
-    pub rerun: objloc::viz::VizArgs,
+    pub rerun: crate::viz::VizArgs,
 }
 
 /// A shipped recording, found from the working directory or, failing that, the source tree
@@ -77,7 +77,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         &args.fuse,
         &args.topics,
         &args.rerun,
-        &objloc::viz::rrd_beside(&report_path),
+        &crate::viz::rrd_beside(&report_path),
     )
     .context("demo: fuse")?;
     print_summary(&f);
@@ -165,7 +165,7 @@ fn drift(args: &Args, path: &Path, model_path: &Path) -> anyhow::Result<()> {
             &fuse_args,
             &args.topics,
             &args.rerun,
-            &objloc::viz::rrd_beside(&report_path),
+            &crate::viz::rrd_beside(&report_path),
         )
         .with_context(|| format!("demo: fuse {name}"))?;
         write_outputs(&f, Some(&report_path), None)?;

@@ -5,9 +5,9 @@ use std::path::PathBuf;
 
 use anyhow::{Context, bail};
 
-use objloc::eval::{Evaluation, evaluate, true_objects};
-use objloc::report::{REPORT_VERSION, Report};
-use objloc::session::{SessionMsg, SessionReader};
+use objloc_core::io::session::{SessionMsg, SessionReader};
+use objloc_core::out::eval::{Evaluation, evaluate, true_objects};
+use objloc_core::out::report::{REPORT_VERSION, Report};
 
 use super::TopicArgs;
 

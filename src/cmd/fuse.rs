@@ -7,16 +7,16 @@ use std::time::Instant;
 
 use anyhow::Context;
 
-use objloc::model::Model;
-use objloc::motion::BlurMode;
-use objloc::objects::ObjectParams;
-use objloc::replay::{FuseOptions, Outcome, PoseSource, replay};
-use objloc::report::{Report, file_sha256};
-use objloc::session::SessionReader;
-use objloc::viz::{
+use crate::viz::{
     self, VizArgs,
     fuse::{FuseViz, VizOptions},
 };
+use objloc_core::fuse::motion::BlurMode;
+use objloc_core::fuse::objects::ObjectParams;
+use objloc_core::fuse::replay::{FuseOptions, Outcome, PoseSource, replay};
+use objloc_core::io::session::SessionReader;
+use objloc_core::learn::model::Model;
+use objloc_core::out::report::{Report, file_sha256};
 
 use super::TopicArgs;
 
@@ -241,11 +241,11 @@ pub fn fuse(
 pub fn write_outputs(f: &Fused, report: Option<&Path>, grid: Option<&Path>) -> anyhow::Result<()> {
     if let Some(p) = grid {
         let [nx, ny, nz] = f.outcome.grid.spec.dims;
-        objloc::npy::write(p, &[nx, ny, nz], &f.outcome.grid.probabilities())
+        objloc_core::io::npy::write(p, &[nx, ny, nz], &f.outcome.grid.probabilities())
             .with_context(|| format!("writing the grid {}", p.display()))?;
     }
     if let Some(p) = report {
-        objloc::output::write_atomic(p, f.report.to_json().as_bytes())
+        objloc_core::io::output::write_atomic(p, f.report.to_json().as_bytes())
             .with_context(|| format!("writing the report {}", p.display()))?;
     }
     Ok(())
@@ -299,7 +299,7 @@ pub fn print_summary(f: &Fused) {
 /// What refinement did: the frames per verdict, how far the poses moved off /odom, whether
 /// the floor was dropped, and a rollback with its reason.
 fn print_refinement(r: &Report) {
-    use objloc::refine::Verdict;
+    use objloc_core::fuse::refine::Verdict;
     let mut counts: Vec<(Verdict, usize)> = Vec::new();
     let (mut max_m, mut max_deg) = (0.0f64, 0.0f64);
     for f in &r.per_frame {
@@ -311,7 +311,7 @@ fn print_refinement(r: &Report) {
         }
         let d =
             (f.position_m[0] - f.odom_position_m[0]).hypot(f.position_m[1] - f.odom_position_m[1]);
-        let a = objloc::geometry::wrap_angle(f.yaw_rad - f.odom_yaw_rad).to_degrees();
+        let a = objloc_core::types::geometry::wrap_angle(f.yaw_rad - f.odom_yaw_rad).to_degrees();
         max_m = max_m.max(d);
         max_deg = max_deg.max(a.abs());
     }

@@ -18,8 +18,8 @@ pub struct Args {
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
-    let summary =
-        objloc::inspect::summarize(&args.session, args.topics.topics()?).context("inspect")?;
+    let summary = objloc_core::io::inspect::summarize(&args.session, args.topics.topics()?)
+        .context("inspect")?;
     if args.json {
         println!("{}", serde_json::to_string_pretty(&summary)?);
     } else {

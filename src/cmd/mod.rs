@@ -11,7 +11,7 @@ mod train;
 
 use clap::{Parser, Subcommand};
 
-use objloc::session::Topics;
+use objloc_core::io::session::Topics;
 
 /// Teach a robot to find an object in 3D from camera images: record and replay ROS 2 MCAP
 /// sessions, train a tile classifier, fuse views into a Bayesian 3D grid.

@@ -6,8 +6,8 @@
 use std::path::PathBuf;
 
 use anyhow::Context;
-use objloc::dataset::load_session;
-use objloc::model::Model;
+use objloc_core::learn::dataset::load_session;
+use objloc_core::learn::model::Model;
 
 use super::TopicArgs;
 
@@ -30,7 +30,7 @@ pub struct Args {
     #[command(flatten)]
     topics: TopicArgs,
     #[command(flatten)]
-    rerun: objloc::viz::VizArgs,
+    rerun: crate::viz::VizArgs,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
@@ -45,18 +45,18 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     pred.write(&args.out, &session, args.heatmaps)
         .context("predict: writing outputs")?;
     // The frames with their labels and maps, in Rerun (by default beside the outputs).
-    let id = objloc::viz::recording_id(
+    let id = crate::viz::recording_id(
         "predict",
         &[&session.sha256, &serde_json::to_string(&model)?],
     );
-    let stream = objloc::viz::open_stream(
+    let stream = crate::viz::open_stream(
         &args.rerun,
         &args.out.join("predict.rrd"),
         &id,
-        Some(objloc::viz::train_blueprint()),
+        Some(crate::viz::train_blueprint()),
     )?;
     if stream.is_on() {
-        objloc::viz::train::log_training_frames(
+        crate::viz::train::log_training_frames(
             &stream.rec,
             &model,
             std::slice::from_ref(&session),
@@ -66,7 +66,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         println!(
             "rerun recording: {} (open it with: {})",
             p.display(),
-            objloc::viz::open_command(&p)
+            crate::viz::open_command(&p)
         );
     }
     let (rows, cols) = pred.maps.first().map_or((0, 0), |m| (m.rows, m.cols));
@@ -79,7 +79,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         println!("no labelled frames: no tile AUC");
         return Ok(());
     };
-    let auc = |m: &objloc::tree::Metrics| {
+    let auc = |m: &objloc_core::learn::tree::Metrics| {
         m.roc_auc
             .map_or_else(|| "n/a (one class only)".to_owned(), |a| format!("{a:.4}"))
     };

@@ -1,5 +1,5 @@
-//! `objloc record sim|import`: parse options, show progress, call [`objloc::sim::record`] or
-//! [`objloc::import::import`].
+//! `objloc record sim|import`: parse options, show progress, call [`objloc_core::sim::record`] or
+//! [`objloc_core::io::import::import`].
 
 use std::io::IsTerminal;
 use std::path::PathBuf;
@@ -7,7 +7,7 @@ use std::path::PathBuf;
 use anyhow::Context;
 use indicatif::{ProgressBar, ProgressStyle};
 
-use objloc::sim::{Kind, SimOptions, SpeedNoise};
+use objloc_core::sim::{Kind, SimOptions, SpeedNoise};
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
@@ -118,8 +118,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 
 fn run_sim(a: SimArgs) -> anyhow::Result<()> {
     let scene = match (&a.scene, &a.scene_file) {
-        (Some(name), _) => objloc::sim::builtin_scene(name)?,
-        (None, Some(file)) => objloc::sim::load_scene(file)?,
+        (Some(name), _) => objloc_core::sim::builtin_scene(name)?,
+        (None, Some(file)) => objloc_core::sim::load_scene(file)?,
         (None, None) => anyhow::bail!("give --scene NAME or --scene-file FILE"),
     };
     let [trans, rot] = floats::<2>(&a.speed_noise, "--speed-noise")?;
@@ -136,7 +136,7 @@ fn run_sim(a: SimArgs) -> anyhow::Result<()> {
     };
     let bar = progress_bar();
     bar.set_message(format!("{} {:?}", scene.name, a.kind).to_lowercase());
-    let stats = objloc::sim::record(&scene, &opts, &a.output, &mut |done, total| {
+    let stats = objloc_core::sim::record(&scene, &opts, &a.output, &mut |done, total| {
         bar.set_length(total as u64);
         bar.set_position(done as u64);
     })
@@ -153,7 +153,7 @@ fn run_sim(a: SimArgs) -> anyhow::Result<()> {
 
 fn run_import(a: ImportArgs) -> anyhow::Result<()> {
     let camera = floats::<4>(&a.camera, "--camera")?;
-    let opts = objloc::import::ImportOptions {
+    let opts = objloc_core::io::import::ImportOptions {
         images: a.images,
         trajectory: a.trajectory,
         camera,
@@ -162,7 +162,7 @@ fn run_import(a: ImportArgs) -> anyhow::Result<()> {
     };
     let bar = progress_bar();
     bar.set_message("import");
-    let stats = objloc::import::import(&opts, &a.output, &mut |done, total| {
+    let stats = objloc_core::io::import::import(&opts, &a.output, &mut |done, total| {
         bar.set_length(total as u64);
         bar.set_position(done as u64);
     })

@@ -5,10 +5,10 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::Context;
-use objloc::dataset::{export_features, load_session};
-use objloc::features::FeatureKind;
-use objloc::model::{RegionConfig, TrainConfig, examples, fit_model};
-use objloc::tree::TreeParams;
+use objloc_core::learn::dataset::{export_features, load_session};
+use objloc_core::learn::features::FeatureKind;
+use objloc_core::learn::model::{RegionConfig, TrainConfig, examples, fit_model};
+use objloc_core::learn::tree::TreeParams;
 
 use super::TopicArgs;
 
@@ -75,7 +75,7 @@ pub struct Args {
     #[command(flatten)]
     topics: TopicArgs,
     #[command(flatten)]
-    rerun: objloc::viz::VizArgs,
+    rerun: crate::viz::VizArgs,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
@@ -106,17 +106,17 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         cfg.tree.m_estimate
     );
     anyhow::ensure!(
-        cfg.context_tiles <= objloc::model::MAX_CONTEXT_TILES,
+        cfg.context_tiles <= objloc_core::learn::model::MAX_CONTEXT_TILES,
         "--context-tiles {} is over {}",
         cfg.context_tiles,
-        objloc::model::MAX_CONTEXT_TILES
+        objloc_core::learn::model::MAX_CONTEXT_TILES
     );
     if let Some(r) = &cfg.region {
         anyhow::ensure!(
-            (1..=objloc::model::MAX_CONTEXT_TILES).contains(&r.context_tiles),
+            (1..=objloc_core::learn::model::MAX_CONTEXT_TILES).contains(&r.context_tiles),
             "--region-context-tiles {} must be in 1..={}",
             r.context_tiles,
-            objloc::model::MAX_CONTEXT_TILES
+            objloc_core::learn::model::MAX_CONTEXT_TILES
         );
         // Checked here too, so a bad value fails before the tile head is trained.
         anyhow::ensure!(
@@ -171,26 +171,26 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     // The tree as a graph and the training frames with their maps, in Rerun (by default
     // beside the model).
     let hashes: Vec<&str> = sessions.iter().map(|s| s.sha256.as_str()).collect();
-    let id = objloc::viz::recording_id(
+    let id = crate::viz::recording_id(
         "train",
         &[&hashes.join(","), &serde_json::to_string(&model)?],
     );
-    let stream = objloc::viz::open_stream(
+    let stream = crate::viz::open_stream(
         &args.rerun,
         &args.output.with_extension("rrd"),
         &id,
-        Some(objloc::viz::train_blueprint()),
+        Some(crate::viz::train_blueprint()),
     )
     .context("train: opening the Rerun recording")?;
     if stream.is_on() {
-        objloc::viz::train::log_tree(&stream.rec, &model)?;
-        objloc::viz::train::log_training_frames(&stream.rec, &model, &sessions)?;
+        crate::viz::train::log_tree(&stream.rec, &model)?;
+        crate::viz::train::log_training_frames(&stream.rec, &model, &sessions)?;
     }
     if let Some(p) = stream.finish()? {
         println!(
             "rerun recording: {} (open it with: {})",
             p.display(),
-            objloc::viz::open_command(&p)
+            crate::viz::open_command(&p)
         );
     }
     println!(

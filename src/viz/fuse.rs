@@ -11,12 +11,12 @@ use nalgebra::Point3;
 use rerun::RecordingStream;
 
 use super::{TIMELINE_FRAME, TIMELINE_LOG_TIME, VizError, log_err, viridis};
-use crate::geometry::{Camera, Iso3, iso_from_pose, yaw_of};
-use crate::grid::{Grid, sigmoid};
-use crate::objects::Object;
-use crate::refine::Verdict;
-use crate::replay::{FrameStep, Observer, SessionData, TileProbs};
-use crate::session::Rgb8;
+use objloc_core::fuse::grid::{Grid, sigmoid};
+use objloc_core::fuse::objects::Object;
+use objloc_core::fuse::refine::Verdict;
+use objloc_core::fuse::replay::{FrameStep, Observer, SessionData, TileProbs};
+use objloc_core::io::session::Rgb8;
+use objloc_core::types::geometry::{Camera, Iso3, iso_from_pose, yaw_of};
 use rayon::prelude::*;
 
 /// What the fuse stream shows.
@@ -655,8 +655,8 @@ impl Observer for FuseViz {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::geometry::iso_from_xy_yaw;
-    use crate::grid::{GridSpec, logit};
+    use objloc_core::fuse::grid::{GridSpec, logit};
+    use objloc_core::types::geometry::iso_from_xy_yaw;
 
     #[test]
     fn upscale_repeats_tiles_and_leaves_partial_edges_empty() {

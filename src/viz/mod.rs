@@ -70,7 +70,7 @@ pub enum Target {
 /// The standard Rerun flags ([`rerun::clap::RerunArgs`]) and where they send the recording:
 /// RerunArgs' `--spawn` defaults to true and its fields are private, so the choice is read
 /// from clap's value sources here (a flag counts only when given on the command line). Flatten it into a command's `Args`:
-/// `#[command(flatten)] pub rerun: objloc::viz::VizArgs`.
+/// `#[command(flatten)] pub rerun: crate::viz::VizArgs`.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct VizArgs {
     pub target: Target,

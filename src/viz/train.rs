@@ -11,9 +11,9 @@ use rerun::RecordingStream;
 
 use super::fuse::{depth_image, log_frame_and_probs, upscale};
 use super::{TIMELINE_FRAME, TIMELINE_LOG_TIME, VizError, log_err, viridis};
-use crate::dataset::LoadedSession;
-use crate::model::Model;
-use crate::replay::TileProbs;
+use objloc_core::fuse::replay::TileProbs;
+use objloc_core::learn::dataset::LoadedSession;
+use objloc_core::learn::model::Model;
 
 /// Node labels of the tree, index order: "bin 12 (hue ...) > 0.0312?" at inner nodes,
 /// "p 0.873, 120/137" at leaves.
@@ -98,7 +98,7 @@ pub fn log_training_frames(
             );
             rec.set_time_sequence(TIMELINE_FRAME, index);
             index += 1;
-            let probs = |m: crate::model::ProbMap| TileProbs {
+            let probs = |m: objloc_core::learn::model::ProbMap| TileProbs {
                 rows: m.rows,
                 cols: m.cols,
                 tile_px: m.tile_px,

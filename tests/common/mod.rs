@@ -1,4 +1,4 @@
-//! Shared test fixture: a small, complete session written through `objloc::session::SessionWriter`
+//! Shared test fixture: a small, complete session written through `objloc_core::io::session::SessionWriter`
 //! with known values, so tests can compare what any reader (ours or a third party's) decodes.
 //!
 //! Invariants: every value is a constant or computed from constants here (no clock, no
@@ -11,11 +11,11 @@ pub mod pyenv;
 use std::collections::BTreeMap;
 use std::path::Path;
 
-use objloc::msgs::{
+use objloc_core::io::msgs::{
     CameraInfo, CompressedImage, GroundTruth, Header, ObjectLabel, Odometry, Pose, PoseStamped,
     RegionOfInterest, TfMessage, TransformStamped, Twist, TwistStamped,
 };
-use objloc::session::SessionWriter;
+use objloc_core::io::session::SessionWriter;
 
 /// First frame stamp: a realistic epoch time with a non-zero nanosecond part, so a reader that
 /// mixes up `sec` and `nanosec` shows it.
@@ -196,7 +196,8 @@ pub fn write_fixture_session(path: &Path) -> Fixture {
         box_size: vec![[0.5, 0.5, 0.9], [1.5, 0.75, 0.75]],
     };
 
-    let fail = |e: objloc::session::SessionError| -> ! { panic!("fixture write failed: {e}") };
+    let fail =
+        |e: objloc_core::io::session::SessionError| -> ! { panic!("fixture write failed: {e}") };
     let mut w = SessionWriter::create(path).unwrap_or_else(|e| fail(e));
     // Written in stamp order, as a recorder would.
     w.write("/tf_static", tf_static_stamp_ns, &tf_static)

@@ -8,7 +8,7 @@
 
 use std::collections::BTreeSet;
 
-use crate::cdr::{CdrError, CdrReader, CdrWriter};
+use crate::io::cdr::{CdrError, CdrReader, CdrWriter};
 
 /// `std_msgs/Header`, with the stamp held as nanoseconds since the epoch.
 #[derive(Debug, Clone, PartialEq, Default)]

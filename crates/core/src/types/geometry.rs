@@ -7,7 +7,7 @@
 
 use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
 
-use crate::msgs::{CameraInfo, Pose};
+use crate::io::msgs::{CameraInfo, Pose};
 
 pub type Iso3 = Isometry3<f64>;
 

@@ -9,8 +9,8 @@ use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
-use crate::objects::Object;
-use crate::replay::{FrameSummary, FuseOptions, Outcome, RefinementCheck};
+use crate::fuse::objects::Object;
+use crate::fuse::replay::{FrameSummary, FuseOptions, Outcome, RefinementCheck};
 
 /// 2: objects carry `mass_centroid_m`, and `centroid_m` is the centre of the object's
 /// extent (in version 1 it was the mass centroid).

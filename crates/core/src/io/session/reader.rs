@@ -13,7 +13,7 @@ use mcap::records::Record;
 use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
 
 use super::{At, Frame, FramePixels, Role, SessionError, SessionMsg, TimedMsg, Topics};
-use crate::msgs::{
+use crate::io::msgs::{
     CameraInfo, CompressedImage, GroundTruth, Image, ObjectLabel, Odometry, PoseStamped,
     RosMessage, TfMessage, TwistStamped,
 };

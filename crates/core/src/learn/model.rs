@@ -17,10 +17,14 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
-use crate::dataset::{ExampleParams, ExampleSet, LoadedSession, TILE_PX_RANGE, build_examples};
-use crate::features::{FeatureKind, TileFeature, tile_histograms, with_context};
-use crate::session::Rgb8;
-use crate::tree::{Examples, FitReport, Metrics, Third, Tree, TreeError, TreeParams, fit, metrics};
+use crate::io::session::Rgb8;
+use crate::learn::dataset::{
+    ExampleParams, ExampleSet, LoadedSession, TILE_PX_RANGE, build_examples,
+};
+use crate::learn::features::{FeatureKind, TileFeature, tile_histograms, with_context};
+use crate::learn::tree::{
+    Examples, FitReport, Metrics, Third, Tree, TreeError, TreeParams, fit, metrics,
+};
 
 /// 2: the model may carry a region head (`region`), the tree `predict` answers with.
 pub const MODEL_VERSION: u32 = 2;
@@ -52,7 +56,7 @@ pub enum ModelError {
         source: TreeError,
     },
     #[error(transparent)]
-    Dataset(#[from] crate::dataset::DatasetError),
+    Dataset(#[from] crate::learn::dataset::DatasetError),
     #[error("training failed: {0}")]
     Fit(TreeError),
     #[error("no labelled frames in {sessions} session(s): nothing to train on")]
@@ -265,7 +269,7 @@ impl Model {
             source,
         })?;
         text.push('\n');
-        crate::output::write_atomic(path, text.as_bytes()).map_err(|source| ModelError::Io {
+        crate::io::output::write_atomic(path, text.as_bytes()).map_err(|source| ModelError::Io {
             path: path.to_owned(),
             source,
         })
@@ -292,7 +296,7 @@ impl Model {
 
     /// Features the tree reads: the tile's histogram, then the neighbourhood's if any.
     pub fn n_features(&self) -> usize {
-        crate::features::feature_count(self.features, self.context_tiles)
+        crate::learn::features::feature_count(self.features, self.context_tiles)
     }
 
     /// A tree feature in words, e.g. "bin 96 (red 96-127, ...)" or, for the neighbourhood
@@ -461,13 +465,13 @@ impl Model {
         session: &LoadedSession,
     ) -> Result<SessionPrediction, ModelError> {
         if let Some(first) = session.frames.first() {
-            let size = |f: &crate::dataset::SessionFrame| (f.image.width, f.image.height);
+            let size = |f: &crate::learn::dataset::SessionFrame| (f.image.width, f.image.height);
             if let Some(f) = session.frames.iter().find(|f| size(f) != size(first)) {
                 return Err(ModelError::Spec {
                     path: session.path.clone(),
                     what: format!(
                         "frame at log time {} is {} x {} px but the first frame is {} x {} px; one probability array needs one frame size",
-                        crate::session::fmt_ns(f.log_time_ns),
+                        crate::io::session::fmt_ns(f.log_time_ns),
                         f.image.width,
                         f.image.height,
                         first.image.width,
@@ -500,7 +504,7 @@ impl Model {
             for (f, m) in session.frames.iter().zip(maps) {
                 if let Some(regions) = &f.regions {
                     p.extend(m.p.iter().map(|&v| v as f64));
-                    y.extend(crate::dataset::tile_labels(
+                    y.extend(crate::learn::dataset::tile_labels(
                         regions, m.rows, m.cols, m.tile_px,
                     ));
                 }
@@ -541,8 +545,8 @@ impl SessionPrediction {
             .iter()
             .flat_map(|m| m.p.iter().copied())
             .collect();
-        let npy = |e: crate::npy::NpyError| match e {
-            crate::npy::NpyError::Io { path, source } => ModelError::Io {
+        let npy = |e: crate::io::npy::NpyError| match e {
+            crate::io::npy::NpyError::Io { path, source } => ModelError::Io {
                 path: path.into(),
                 source,
             },
@@ -551,13 +555,13 @@ impl SessionPrediction {
                 source: std::io::Error::other(other.to_string()),
             },
         };
-        crate::npy::write(
+        crate::io::npy::write(
             &dir.join("probs.npy"),
             &[self.maps.len(), rows, cols],
             &probs,
         )
         .map_err(npy)?;
-        crate::npy::write(
+        crate::io::npy::write(
             &dir.join("tile_probs.npy"),
             &[self.tile_maps.len(), rows, cols],
             &tile_probs,
@@ -570,20 +574,22 @@ impl SessionPrediction {
             .iter()
             .zip(&self.maps)
             .flat_map(|(f, m)| match &f.regions {
-                Some(regions) => crate::dataset::tile_labels(regions, m.rows, m.cols, m.tile_px)
-                    .into_iter()
-                    .map(i8::from)
-                    .collect(),
+                Some(regions) => {
+                    crate::learn::dataset::tile_labels(regions, m.rows, m.cols, m.tile_px)
+                        .into_iter()
+                        .map(i8::from)
+                        .collect()
+                }
                 None => vec![-1; m.p.len()],
             })
             .collect();
-        crate::npy::write(
+        crate::io::npy::write(
             &dir.join("labels.npy"),
             &[self.maps.len(), rows, cols],
             &labels,
         )
         .map_err(npy)?;
-        crate::npy::write(
+        crate::io::npy::write(
             &dir.join("stamps.npy"),
             &[self.stamps_ns.len()],
             &self.stamps_ns,
@@ -605,7 +611,7 @@ impl SessionPrediction {
                         path: path.clone(),
                         source: std::io::Error::other(e.to_string()),
                     })?;
-                crate::output::write_atomic(&path, &png).map_err(io(&path))?;
+                crate::io::output::write_atomic(&path, &png).map_err(io(&path))?;
             }
         }
         Ok(())
@@ -700,7 +706,7 @@ pub fn third_metrics(tree: &Tree, ex: &Examples, third: Third) -> Metrics {
     metrics(&p, &y)
 }
 
-/// Builds the examples of `sessions` (see [`crate::dataset`]).
+/// Builds the examples of `sessions` (see [`crate::learn::dataset`]).
 pub fn examples(sessions: &[LoadedSession], cfg: &TrainConfig) -> Result<ExampleSet, ModelError> {
     let set = build_examples(sessions, &cfg.example_params())?;
     let (n, pos) = set.examples.third_counts(Third::Train);

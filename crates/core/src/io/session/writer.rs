@@ -13,8 +13,8 @@ use std::path::{Path, PathBuf};
 use mcap::{WriteOptions, Writer};
 
 use super::{At, SessionError};
-use crate::msgs::RosMessage;
-use crate::output::partial_path;
+use crate::io::msgs::RosMessage;
+use crate::io::output::partial_path;
 
 /// Chunk size: a few 256x240 PNG frames, so a crash loses at most a second or so of a sim.
 const CHUNK_SIZE_BYTES: u64 = 256 * 1024;

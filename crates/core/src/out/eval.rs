@@ -8,11 +8,11 @@
 use nalgebra::Point3;
 use serde::{Deserialize, Serialize};
 
-use crate::geometry::{Iso3, iso_from_pose};
-use crate::grid::GridSpec;
-use crate::msgs::GroundTruth;
-use crate::objects::Object;
-use crate::report::Report;
+use crate::fuse::grid::GridSpec;
+use crate::fuse::objects::Object;
+use crate::io::msgs::GroundTruth;
+use crate::out::report::Report;
+use crate::types::geometry::{Iso3, iso_from_pose};
 
 /// An estimate farther than this from a true box's centre (or than half the box's diagonal,
 /// if larger) cannot be that box.
@@ -208,7 +208,7 @@ pub struct FrameEval {
     /// What pose refinement did with the frame (absent when not refining, and for the first
     /// frame, which anchors the frame of reference).
     #[serde(default)]
-    pub refinement: Option<crate::refine::Verdict>,
+    pub refinement: Option<crate::fuse::refine::Verdict>,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -381,10 +381,10 @@ pub fn evaluate(
         })
         .collect();
     let poses = match (report.options.poses, report.options.refine_poses) {
-        (crate::replay::PoseSource::GroundTruth, false) => "ground-truth",
-        (crate::replay::PoseSource::GroundTruth, true) => "ground-truth, refined",
-        (crate::replay::PoseSource::Odometry, false) => "odometry",
-        (crate::replay::PoseSource::Odometry, true) => "refined",
+        (crate::fuse::replay::PoseSource::GroundTruth, false) => "ground-truth",
+        (crate::fuse::replay::PoseSource::GroundTruth, true) => "ground-truth, refined",
+        (crate::fuse::replay::PoseSource::Odometry, false) => "odometry",
+        (crate::fuse::replay::PoseSource::Odometry, true) => "refined",
     };
     Evaluation {
         report: report_name.to_owned(),
@@ -413,7 +413,7 @@ pub fn evaluate(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::geometry::iso_from_xy_yaw;
+    use crate::types::geometry::iso_from_xy_yaw;
 
     fn obj(c: [f64; 3]) -> Object {
         Object {
@@ -473,7 +473,7 @@ mod tests {
     /// volume-weighted mean, (0.008 m^3 * 0 + 0.00025 m^3 * 0.15) / 0.00825 m^3 along x.
     #[test]
     fn touching_boxes_of_one_name_are_one_instance() {
-        use crate::msgs::{GroundTruth, Header, Pose};
+        use crate::io::msgs::{GroundTruth, Header, Pose};
         let pose = |x: f64, y: f64| Pose {
             position: [x, y, 0.5],
             orientation_xyzw: [0.0, 0.0, 0.0, 1.0],
@@ -520,8 +520,8 @@ mod tests {
 
     #[test]
     fn trajectory_error_is_the_rmse_at_the_frames() {
-        use crate::replay::{FrameSummary, FuseOptions};
-        use crate::report::{GridReport, REPORT_VERSION, Report};
+        use crate::fuse::replay::{FrameSummary, FuseOptions};
+        use crate::out::report::{GridReport, REPORT_VERSION, Report};
         let frame = |index: usize, stamp_ns: i64, odom: [f64; 3], used: [f64; 3]| FrameSummary {
             index,
             stamp_ns,

@@ -9,7 +9,7 @@
 
 use rayon::prelude::*;
 
-use crate::grid::{Grid, sigmoid};
+use crate::fuse::grid::{Grid, sigmoid};
 
 /// What the blur averages.
 #[derive(
@@ -116,7 +116,7 @@ fn gaussian_weights(n: usize, spacing: f64, sigma: f64) -> Vec<f64> {
 /// dynamic range of e^40.
 pub mod kernel {
     use super::*;
-    use crate::grid::GridSpec;
+    use crate::fuse::grid::GridSpec;
 
     /// A blur buffer's element: weights are computed in f64 and converted once per use.
     pub trait Sample:
@@ -391,7 +391,7 @@ impl Blurrer {
     /// position uncertainty `sigma_m` spreads isotropically in x and y.
     pub fn spread_evidence(
         &mut self,
-        spec: &crate::grid::GridSpec,
+        spec: &crate::fuse::grid::GridSpec,
         evidence: &mut [f32],
         center_xy: [f64; 2],
         sigma_rad: f64,
@@ -427,11 +427,11 @@ impl Blurrer {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::grid::logit;
+    use crate::fuse::grid::logit;
 
     #[test]
     fn fast_floor_is_floor() {
-        let mut rng = crate::rng::SplitMix64::new(3);
+        let mut rng = crate::types::rng::SplitMix64::new(3);
         let mut xs = vec![
             0.0,
             1.0,
@@ -451,7 +451,7 @@ mod tests {
         }
         assert!(floor_fast(f64::NAN).is_nan());
     }
-    use crate::grid::GridSpec;
+    use crate::fuse::grid::GridSpec;
 
     fn grid() -> Grid {
         let spec = GridSpec::from_bounds([0.0; 3], [4.0, 4.0, 0.12], 0.04).unwrap();

@@ -21,8 +21,8 @@
 
 use nalgebra::{Point3, Vector3};
 
-use crate::geometry::{Camera, Iso3, yaw_of};
-use crate::session::Rgb8;
+use crate::io::session::Rgb8;
+use crate::types::geometry::{Camera, Iso3, yaw_of};
 
 /// Settings of the floor term. The defaults were chosen by a sweep over 20 sessions (shipped
 /// and held-out-style tours, docs/fuser.md "The floor"): cells of 0.15-0.20 m lose the rug's
@@ -397,7 +397,7 @@ impl FloorMap {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::geometry::{camera_mount, iso_from_xy_yaw};
+    use crate::types::geometry::{camera_mount, iso_from_xy_yaw};
 
     #[test]
     fn a_pixel_lands_where_its_ray_meets_the_floor() {

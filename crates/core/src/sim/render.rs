@@ -11,7 +11,7 @@ use nalgebra::{Point3, Vector3};
 use rayon::prelude::*;
 
 use super::scene::{Material, Scene, Shape, Texture};
-use crate::geometry::{Camera, Iso3};
+use crate::types::geometry::{Camera, Iso3};
 
 /// Rays start this far off a surface so they do not hit it again.
 const SURFACE_EPS_M: f64 = 1e-6;

@@ -17,12 +17,12 @@ use std::path::{Path, PathBuf};
 use rayon::prelude::*;
 use thiserror::Error;
 
-use crate::features::{
+use crate::io::msgs::RegionOfInterest;
+use crate::io::session::{At, Frame, Rgb8, SessionError, SessionMsg, SessionReader, Topics};
+use crate::learn::features::{
     FeatureKind, TileFeature, bin_image, feature_count, histograms_of_bins, with_context,
 };
-use crate::msgs::RegionOfInterest;
-use crate::session::{At, Frame, Rgb8, SessionError, SessionMsg, SessionReader, Topics};
-use crate::tree::{Examples, Third};
+use crate::learn::tree::{Examples, Third};
 
 /// Allowed tile sides: a tile must hold at least 4 pixels, and counts fit u16 up to 255.
 pub const TILE_PX_RANGE: std::ops::RangeInclusive<u32> = 2..=128;
@@ -181,7 +181,7 @@ pub struct ExampleParams {
     pub train_stride_px: u32,
     pub seed: u64,
     /// Radius in tiles of the neighbourhood histogram appended to each tile's
-    /// ([`crate::features::with_context`]); 0 = the tile alone.
+    /// ([`crate::learn::features::with_context`]); 0 = the tile alone.
     pub context_tiles: u32,
 }
 
@@ -202,7 +202,7 @@ impl ExampleParams {
     }
 }
 
-pub use crate::rng::SplitMix64;
+pub use crate::types::rng::SplitMix64;
 
 /// Thirds for `labels`: stratified, seeded; sizes differ by at most one.
 pub fn assign_thirds(labels: &[bool], seed: u64) -> Vec<Third> {
@@ -327,7 +327,7 @@ impl SparseTiles {
         let mut entries = Vec::new();
         let mut ends = Vec::with_capacity(counts.len() / bins.max(1));
         for tile in counts.chunks_exact(bins) {
-            crate::tree::push_nonzero(tile, &mut entries);
+            crate::learn::tree::push_nonzero(tile, &mut entries);
             ends.push(entries.len());
         }
         Self { entries, ends }
@@ -341,9 +341,9 @@ impl SparseTiles {
 
 /// Writes `X.npy` (float32, n x bins, pixel fractions), `y.npy` (uint8 0/1) and `split.npy`
 /// (uint8: 0 train, 1 test, 2 prune) into `dir` (created if missing).
-pub fn export_features(set: &ExampleSet, dir: &Path) -> Result<(), crate::npy::NpyError> {
+pub fn export_features(set: &ExampleSet, dir: &Path) -> Result<(), crate::io::npy::NpyError> {
     let ex = &set.examples;
-    std::fs::create_dir_all(dir).map_err(|source| crate::npy::NpyError::Io {
+    std::fs::create_dir_all(dir).map_err(|source| crate::io::npy::NpyError::Io {
         path: dir.display().to_string(),
         source,
     })?;
@@ -351,11 +351,11 @@ pub fn export_features(set: &ExampleSet, dir: &Path) -> Result<(), crate::npy::N
     for i in 0..ex.len() {
         x.extend(ex.dense_values(i));
     }
-    crate::npy::write(&dir.join("X.npy"), &[ex.len(), ex.n_features], &x)?;
+    crate::io::npy::write(&dir.join("X.npy"), &[ex.len(), ex.n_features], &x)?;
     let y: Vec<u8> = ex.labels.iter().map(|&l| l as u8).collect();
-    crate::npy::write(&dir.join("y.npy"), &[ex.len()], &y)?;
+    crate::io::npy::write(&dir.join("y.npy"), &[ex.len()], &y)?;
     let split: Vec<u8> = ex.thirds.iter().map(|&t| t as u8).collect();
-    crate::npy::write(&dir.join("split.npy"), &[ex.len()], &split)
+    crate::io::npy::write(&dir.join("split.npy"), &[ex.len()], &split)
 }
 
 #[cfg(test)]

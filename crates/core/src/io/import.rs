@@ -20,12 +20,12 @@ use std::path::{Path, PathBuf};
 
 use thiserror::Error;
 
-use crate::geometry::{Iso3, interpolate, iso_from_parts, pose_from_iso};
-use crate::msgs::{
+use crate::io::msgs::{
     CameraInfo, CompressedImage, Header, ObjectLabel, Odometry, RegionOfInterest, TfMessage,
     TransformStamped, Twist,
 };
-use crate::session::{SessionError, SessionWriter, Topics};
+use crate::io::session::{SessionError, SessionWriter, Topics};
+use crate::types::geometry::{Iso3, interpolate, iso_from_parts, pose_from_iso};
 
 /// An image stamp may lie this far outside the trajectory's time span.
 pub const MAX_EXTRAPOLATION_NS: i64 = 50_000_000;
@@ -129,7 +129,7 @@ pub fn parse_trajectory(path: &Path, text: &str) -> Result<Vec<TrajectoryPose>, 
             return Err(err(format!(
                 "timestamp {} is not after the previous line's ({})",
                 fields[0],
-                crate::session::fmt_ns(prev.stamp_ns.max(0) as u64)
+                crate::io::session::fmt_ns(prev.stamp_ns.max(0) as u64)
             )));
         }
         out.push(TrajectoryPose {
@@ -264,9 +264,9 @@ fn pose_at(traj: &[TrajectoryPose], stamp_ns: i64) -> Result<Iso3, String> {
     {
         return Err(format!(
             "stamp {} is outside the trajectory ({} to {}) by more than 50 ms",
-            crate::session::fmt_ns(stamp_ns.max(0) as u64),
-            crate::session::fmt_ns(first.stamp_ns.max(0) as u64),
-            crate::session::fmt_ns(last.stamp_ns.max(0) as u64)
+            crate::io::session::fmt_ns(stamp_ns.max(0) as u64),
+            crate::io::session::fmt_ns(first.stamp_ns.max(0) as u64),
+            crate::io::session::fmt_ns(last.stamp_ns.max(0) as u64)
         ));
     }
     let i = traj.partition_point(|p| p.stamp_ns <= stamp_ns);
@@ -385,7 +385,7 @@ pub fn import(
     let result = write_session(opts, out, &images, &posed, labels.as_ref(), progress);
     if result.is_err() {
         // An error leaves nothing behind: no final file, no partial one.
-        let _ = std::fs::remove_file(crate::output::partial_path(out));
+        let _ = std::fs::remove_file(crate::io::output::partial_path(out));
     }
     result.map(|(path, labelled)| ImportStats {
         path,

@@ -11,7 +11,7 @@ use nalgebra::{Point3, Vector3};
 use rayon::prelude::*;
 use thiserror::Error;
 
-use crate::geometry::{Camera, Iso3};
+use crate::types::geometry::{Camera, Iso3};
 
 /// Largest grid objloc allocates, all buffers counted: 4 GiB keeps a 24 GiB machine safe with
 /// room for the rest; a request beyond it is refused before anything is allocated.
@@ -405,7 +405,7 @@ const SPAN_MARGIN: f64 = 2.0;
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::geometry::{camera_mount, iso_from_xy_yaw};
+    use crate::types::geometry::{camera_mount, iso_from_xy_yaw};
 
     /// The update as it was before [`column_span`]: every cell of every column tested.
     fn integrate_every_cell(
@@ -443,7 +443,7 @@ mod tests {
         // change exactly the cells, by exactly the values, of testing every cell.
         let spec = GridSpec::from_bounds([-1.0, -1.0, 0.0], [1.0, 1.0, 1.2], 0.05).unwrap();
         let cam = Camera::with_hfov(64, 48, 1.1);
-        let mut rng = crate::rng::SplitMix64::new(7);
+        let mut rng = crate::types::rng::SplitMix64::new(7);
         let p: Vec<f32> = (0..6 * 8)
             .map(|_| 0.01 + 0.98 * rng.uniform() as f32)
             .collect();
@@ -599,7 +599,7 @@ mod tests {
         };
         for (x, y) in [(-2.0f64, 0.1f64), (0.2, -2.0)] {
             let yaw = (target.y - y).atan2(target.x - x) + 0.0625;
-            let odom_from_base = crate::geometry::iso_from_xy_yaw(x, y, yaw);
+            let odom_from_base = crate::types::geometry::iso_from_xy_yaw(x, y, yaw);
             let odom_from_camera = odom_from_base * camera_mount([0.0, 0.0, 0.4], 0.0);
             let camera_from_odom = odom_from_camera.inverse();
             let (u, v) = cam.project(&(camera_from_odom * target)).unwrap();

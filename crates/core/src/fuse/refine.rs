@@ -14,7 +14,7 @@
 //!   candidate pose predicts where each landmark appears in this frame, and the detection
 //!   seen there is Gaussian about that point; times
 //! * (unless `fuse --no-floor`) the likelihood of the frame's view of the floor given the
-//!   floor the earlier frames saw ([`crate::floor`]). One object fixes a frame's bearing
+//!   floor the earlier frames saw ([`crate::fuse::floor`]). One object fixes a frame's bearing
 //!   but not where around the object the robot stands; the floor around it fixes all three
 //!   of (x, y, yaw), from the second frame on.
 //!
@@ -49,10 +49,10 @@ use nalgebra::{
 
 use rayon::prelude::*;
 
-use crate::floor::{FloorMap, FloorPatch};
-use crate::geometry::{Camera, Iso3, yaw_of};
-use crate::grid::TileEvidence;
-use crate::motion::Segment;
+use crate::fuse::floor::{FloorMap, FloorPatch};
+use crate::fuse::grid::TileEvidence;
+use crate::fuse::motion::Segment;
+use crate::types::geometry::{Camera, Iso3, yaw_of};
 
 /// Tiles whose evidence is at least this (odds ratio e^3 = 20 against the prior) are
 /// detections.
@@ -263,7 +263,8 @@ impl TotalGate {
     /// Chi-square of `odom_from_base` against /odom (3 degrees of freedom).
     pub fn chi2(&self, odom_from_base: &Iso3) -> f64 {
         let dt = odom_from_base.translation.vector - self.odometry.translation.vector;
-        let dyaw = crate::geometry::wrap_angle(yaw_of(odom_from_base) - yaw_of(&self.odometry));
+        let dyaw =
+            crate::types::geometry::wrap_angle(yaw_of(odom_from_base) - yaw_of(&self.odometry));
         let e = Vector3::new(dt.x, dt.y, dyaw);
         let cov = self.covariance
             + Matrix3::from_diagonal(&Vector3::new(
@@ -531,7 +532,7 @@ impl Consistency {
 
     /// Whether these rays meet worse than `other`'s (by more than the rollback tolerance).
     pub fn worse_than(&self, other: &Consistency) -> bool {
-        self.mean_chi2 > other.mean_chi2 * (1.0 + crate::replay::ROLLBACK_TOLERANCE) + 1e-9
+        self.mean_chi2 > other.mean_chi2 * (1.0 + crate::fuse::replay::ROLLBACK_TOLERANCE) + 1e-9
     }
 }
 
@@ -935,7 +936,7 @@ fn separated_margin(scored: &[(f64, Vector3<f64>)], side: usize) -> (f64, f64) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::geometry::{camera_mount, iso_from_xy_yaw};
+    use crate::types::geometry::{camera_mount, iso_from_xy_yaw};
 
     fn seg(start_s: f64, end_s: f64, v: f64, w: f64) -> Segment {
         Segment {

@@ -1,5 +1,5 @@
 //! NumPy `.npy` (format 1.0) for float32, float64, uint8 and int64 arrays in C order: the
-//! interchange with Python tools. Writing goes through [`crate::output::write_atomic`].
+//! interchange with Python tools. Writing goes through [`crate::io::output::write_atomic`].
 
 use std::path::Path;
 
@@ -86,7 +86,7 @@ pub fn encode<T: NpyElem>(shape: &[usize], data: &[T]) -> Vec<u8> {
 }
 
 pub fn write<T: NpyElem>(path: &Path, shape: &[usize], data: &[T]) -> Result<(), NpyError> {
-    crate::output::write_atomic(path, &encode(shape, data)).map_err(|source| NpyError::Io {
+    crate::io::output::write_atomic(path, &encode(shape, data)).map_err(|source| NpyError::Io {
         path: path.display().to_string(),
         source,
     })

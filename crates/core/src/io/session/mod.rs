@@ -15,8 +15,8 @@ use std::path::PathBuf;
 
 use thiserror::Error;
 
-use crate::cdr::CdrError;
-use crate::msgs::{
+use crate::io::cdr::CdrError;
+use crate::io::msgs::{
     CameraInfo, CompressedImage, GroundTruth, Image, ObjectLabel, Odometry, PoseStamped,
     RosMessage, TfMessage, TwistStamped,
 };

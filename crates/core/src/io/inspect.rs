@@ -11,8 +11,8 @@ use std::path::Path;
 use rayon::prelude::*;
 use serde::Serialize;
 
-use crate::geometry::Camera;
-use crate::session::{Frame, Role, SessionError, SessionMsg, SessionReader, Topics, fmt_ns};
+use crate::io::session::{Frame, Role, SessionError, SessionMsg, SessionReader, Topics, fmt_ns};
+use crate::types::geometry::Camera;
 
 /// A frame counts as posed when an /odom message lies within this of its stamp.
 pub const POSE_TOLERANCE_NS: i64 = 50_000_000;

@@ -18,7 +18,7 @@ pub const FRAME_GAP_NS: i64 = 500_000_000;
 pub const ODOM_PERIOD_NS: i64 = 100_000_000;
 
 /// The simulator's generator: seeded, identical on every platform.
-pub use crate::rng::SplitMix64 as Rng;
+pub use crate::types::rng::SplitMix64 as Rng;
 
 /// A planar pose in odom: metres and radians.
 #[derive(Debug, Clone, Copy, PartialEq)]

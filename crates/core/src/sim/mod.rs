@@ -1,6 +1,6 @@
 //! The simulator: renders a scene from a robot that rotates and drives between stops, and
 //! records the session (frames, camera info, labels, /cmd_vel, /odom, ground truth) through
-//! [`crate::session::SessionWriter`] like any recorder.
+//! [`crate::io::session::SessionWriter`] like any recorder.
 //!
 //! Invariants: the output is a pure function of (scene, options): stamps start at
 //! [`START_NS`], randomness comes from seeded streams only (robot speeds and camera jitter on
@@ -17,12 +17,12 @@ use std::path::{Path, PathBuf};
 use nalgebra::{Translation3, UnitQuaternion, Vector3};
 use thiserror::Error;
 
-use crate::geometry::{Iso3, camera_mount, iso_from_xy_yaw, pose_from_iso};
-use crate::msgs::{
+use crate::io::msgs::{
     CameraInfo, CompressedImage, GroundTruth, Header, ObjectLabel, Odometry, Pose, PoseStamped,
     RegionOfInterest, TfMessage, TransformStamped, Twist, TwistStamped,
 };
-use crate::session::{SessionError, SessionWriter, Topics};
+use crate::io::session::{SessionError, SessionWriter, Topics};
+use crate::types::geometry::{Iso3, camera_mount, iso_from_xy_yaw, pose_from_iso};
 pub use render::{FrameJitter, Rendered, Renderer};
 pub use robot::{Event, Pose2, Rng, SpeedNoise, Stop};
 pub use scene::{BUILTIN_SCENES, Scene, Shape};
@@ -397,7 +397,7 @@ pub fn record(
     );
     if result.is_err() {
         // An error (unlike a kill) leaves nothing behind: no final file, no partial one.
-        let _ = std::fs::remove_file(crate::output::partial_path(out));
+        let _ = std::fs::remove_file(crate::io::output::partial_path(out));
     }
     result
 }
@@ -592,7 +592,7 @@ fn dump_frame(
 ) -> Result<(), SimError> {
     let io = |path: PathBuf| move |source| SimError::Io { path, source };
     let path = dir.join(format!("frame_{index:03}.png"));
-    crate::output::write_atomic(&path, png).map_err(io(path.clone()))?;
+    crate::io::output::write_atomic(&path, png).map_err(io(path.clone()))?;
     let regions: Vec<RegionOfInterest> = labels
         .iter()
         .flat_map(|l| l.regions.iter().copied())
@@ -605,7 +605,7 @@ fn dump_frame(
             what,
         })?;
     let path = dir.join(format!("frame_{index:03}_labels.png"));
-    crate::output::write_atomic(&path, &boxed_png).map_err(io(path.clone()))
+    crate::io::output::write_atomic(&path, &boxed_png).map_err(io(path.clone()))
 }
 
 #[cfg(test)]
@@ -628,7 +628,7 @@ mod tests {
         );
         assert!((size[2] - 0.945).abs() < 1e-9, "{size:?}");
         assert!((pose.translation.z - 0.4725).abs() < 1e-9);
-        assert!((crate::geometry::yaw_of(pose) - 20f64.to_radians()).abs() < 1e-9);
+        assert!((crate::types::geometry::yaw_of(pose) - 20f64.to_radians()).abs() < 1e-9);
     }
 
     #[test]

@@ -5,7 +5,7 @@
 //! Pass 2 walks the frames in (log_time, channel id, sequence) order: blur the belief by the
 //! commands executed since the previous frame, classify the frame's tiles, integrate them.
 //! With pose refinement each frame is first localised against the landmarks of the frames
-//! before it and the floor they saw ([`crate::refine`], [`crate::floor`]); a localised frame
+//! before it and the floor they saw ([`crate::fuse::refine`], [`crate::fuse::floor`]); a localised frame
 //! is not blurred.
 //! Observers (Rerun, the report) see each step; they cannot change it.
 //!
@@ -17,17 +17,17 @@
 use nalgebra::Point3;
 use thiserror::Error;
 
-use crate::floor::{FloorMap, FloorParams, FloorPatch, floor_patch};
-use crate::geometry::{Camera, Iso3, interpolate, iso_from_parts, iso_from_pose, yaw_of};
-use crate::grid::{Grid, GridError, GridSpec, TileEvidence, logit};
-use crate::motion::{BlurMode, Blurrer, Segment, segments_between};
-use crate::msgs::GroundTruth;
-use crate::objects::{Object, ObjectParams, find_objects, find_objects_with_cells};
-use crate::refine::{
+use crate::fuse::floor::{FloorMap, FloorParams, FloorPatch, floor_patch};
+use crate::fuse::grid::{Grid, GridError, GridSpec, TileEvidence, logit};
+use crate::fuse::motion::{BlurMode, Blurrer, Segment, segments_between};
+use crate::fuse::objects::{Object, ObjectParams, find_objects, find_objects_with_cells};
+use crate::fuse::refine::{
     Consistency, Correction, DETECTION_DELTA, MIN_FLOOR_FIT, Sighting, TotalGate, Verdict,
     detection_clusters, landmarks, motion_covariance, propagate, refine, sightings,
 };
-use crate::session::{At, Rgb8, Role, SessionError, SessionMsg, SessionReader, fmt_ns};
+use crate::io::msgs::GroundTruth;
+use crate::io::session::{At, Rgb8, Role, SessionError, SessionMsg, SessionReader, fmt_ns};
+use crate::types::geometry::{Camera, Iso3, interpolate, iso_from_parts, iso_from_pose, yaw_of};
 
 /// A frame is posed when the odometry reaches within this of its stamp on both sides (or
 /// one side, at the ends of the log).
@@ -49,7 +49,7 @@ pub trait FrameClassifier: Sync {
     fn base_rate(&self) -> f64;
 }
 
-impl FrameClassifier for crate::model::Model {
+impl FrameClassifier for crate::learn::model::Model {
     fn classify(&self, img: &Rgb8) -> TileProbs {
         let m = self.predict(img);
         TileProbs {
@@ -101,14 +101,14 @@ pub struct FuseOptions {
     /// Where frame poses come from: /odom (the default, what a robot has) or the simulator's
     /// /ground_truth/pose (to tell odometry error apart from classifier error).
     pub poses: PoseSource,
-    /// Localise each frame against the belief before fusing it (see [`crate::refine`]). On by
+    /// Localise each frame against the belief before fusing it (see [`crate::fuse::refine`]). On by
     /// default: measured on held-out-style tours at the default speed noise it takes the
     /// sessions with every object within 0.12 m from 4 to 12 of 12 (docs/fuser.md). With both
     /// sigmas 0 (odometry declared exact) it corrects nothing, and the grid is bit for bit the
     /// plain replay's.
     pub refine_poses: bool,
     /// When refining, also align each frame's view of the floor to the floor seen so far
-    /// (see [`crate::floor`]). Absent from reports written before it existed, which did not.
+    /// (see [`crate::fuse::floor`]). Absent from reports written before it existed, which did not.
     #[serde(default)]
     pub refine_floor: bool,
 }
@@ -596,7 +596,7 @@ struct Context<'a> {
 /// Replays `reader` with `classifier` into a grid, telling `observers` each step.
 ///
 /// With pose refinement the replay is checked afterwards: when its poses explain the
-/// frames' detections worse than /odom's do ([`crate::refine::Consistency`]), it is rolled
+/// frames' detections worse than /odom's do ([`crate::fuse::refine::Consistency`]), it is rolled
 /// back: replayed at the /odom poses, the observers seeing the second pass after
 /// [`Observer::on_rollback`], and every frame it had corrected marked
 /// [`Verdict::RolledBack`].
@@ -820,7 +820,7 @@ struct Tracker {
 }
 
 /// A replay stops using the floor once this many frames' floors did not fit the map at
-/// their best pose ([`crate::refine::MIN_FLOOR_FIT`]): the camera is then not looking at a
+/// their best pose ([`crate::fuse::refine::MIN_FLOOR_FIT`]): the camera is then not looking at a
 /// floor but at furniture, a counter or a wall in front of it. One such frame alone is
 /// common on our own tours (a table in view, a frame close to the object); two were not seen
 /// on any of them (docs/fuser.md).
@@ -1027,7 +1027,7 @@ fn summary(
         odom_yaw_rad: yaw_of(&p.odometry),
         correction,
         cells_updated,
-        max_probability: crate::grid::sigmoid(f64::from(max_l)),
+        max_probability: crate::fuse::grid::sigmoid(f64::from(max_l)),
         objects,
     }
 }
@@ -1062,7 +1062,7 @@ fn check_refinement(ctx: &Context<'_>, pass: &Pass) -> RefinementCheck {
             })
             .collect()
     };
-    let gate = crate::refine::GATE_M + moved_m;
+    let gate = crate::fuse::refine::GATE_M + moved_m;
     let refined = Consistency::of(&seeds, &rays(&pass.poses), data.camera.fx, gate);
     let odom = Consistency::of(&seeds, &rays(&odometry), data.camera.fx, gate);
     let floor = floor_params(&pass.fuser.options)
@@ -1071,7 +1071,7 @@ fn check_refinement(ctx: &Context<'_>, pass: &Pass) -> RefinementCheck {
             let disagreement = |poses: &[Iso3]| {
                 let patches: Vec<(&FloorPatch, &Iso3)> =
                     ctx.prepared.iter().map(|p| &p.floor).zip(poses).collect();
-                crate::floor::disagreement(&patches, fp)
+                crate::fuse::floor::disagreement(&patches, fp)
             };
             [disagreement(&pass.poses), disagreement(&odometry)]
         });
@@ -1214,7 +1214,7 @@ fn moved(carried: Option<&Iso3>, pose: &Iso3) -> Iso3 {
 }
 
 /// Localises frame `index` against the landmarks before it is fused (see
-/// [`crate::refine`]); `poses` holds the poses of the frames before it, `seen` the rays
+/// [`crate::fuse::refine`]); `poses` holds the poses of the frames before it, `seen` the rays
 /// through their detections. Returns the correction and the pose it corrects (the previous
 /// frame's pose moved by the odometry increment since).
 #[allow(clippy::too_many_arguments)]
@@ -1336,7 +1336,7 @@ pub fn project_point(camera: &Camera, odom_from_camera: &Iso3, p: [f64; 3]) -> O
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::geometry::iso_from_xy_yaw;
+    use crate::types::geometry::iso_from_xy_yaw;
 
     #[test]
     fn pose_interpolates_and_refuses_gaps() {

@@ -16,7 +16,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::grid::{Grid, sigmoid};
+use crate::fuse::grid::{Grid, sigmoid};
 
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct ObjectParams {
@@ -316,7 +316,7 @@ fn weighted_quantiles(cells: &mut [(usize, f64)], total: f64, trim: f64) -> (usi
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::grid::GridSpec;
+    use crate::fuse::grid::GridSpec;
 
     fn grid_with(blobs: &[([usize; 3], [usize; 3], f32, u16)]) -> Grid {
         let spec = GridSpec::from_bounds([0.0; 3], [1.0, 1.0, 1.0], 0.05).unwrap();
