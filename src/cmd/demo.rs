@@ -200,17 +200,10 @@ fn drift(args: &Args, path: &Path, model_path: &Path) -> anyhow::Result<()> {
 fn evaluation(f: &Fused, report_path: &Path) -> Option<Evaluation> {
     let gt = f.outcome.data.ground_truth.as_ref()?;
     let truth = true_objects(gt);
-    let track: Vec<(i64, [f64; 3])> = f
-        .outcome
-        .data
-        .ground_truth_poses
-        .iter()
-        .map(|(t, p)| (*t, p.translation.vector.into()))
-        .collect();
     Some(evaluate(
         &report_path.display().to_string(),
         &f.report,
         &truth,
-        &track,
+        &f.outcome.data.ground_truth_poses,
     ))
 }

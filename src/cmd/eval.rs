@@ -29,15 +29,19 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let reader = SessionReader::open(&args.session, args.topics.topics()?)
         .with_context(|| format!("eval {}", args.session.display()))?;
     let mut gt = None;
-    let mut track: Vec<(i64, [f64; 3])> = Vec::new();
+    let mut poses = Vec::new();
     for m in reader.messages() {
         match m.context("reading ground truth")?.msg {
             SessionMsg::GroundTruthObjects(g) => gt = Some(g),
-            SessionMsg::GroundTruthPose(p) => track.push((p.header.stamp_ns, p.pose.position)),
+            SessionMsg::GroundTruthPose(p) => {
+                if let Some(iso) = objloc_core::io::msgs::iso_from_pose(&p.pose) {
+                    poses.push((p.header.stamp_ns, iso));
+                }
+            }
             _ => {}
         }
     }
-    track.sort_by_key(|(t, _)| *t);
+    let track = objloc_core::types::track::PoseTrack::new(poses);
     let gt = gt.with_context(|| {
         format!(
             "{}: no {} message: this session has no ground truth to score against",

@@ -14,9 +14,11 @@ use super::{TIMELINE_FRAME, TIMELINE_LOG_TIME, VizError, log_err, viridis};
 use objloc_core::fuse::grid::{Grid, sigmoid};
 use objloc_core::fuse::objects::Object;
 use objloc_core::fuse::refine::Verdict;
-use objloc_core::fuse::replay::{FrameStep, Observer, SessionData, TileProbs};
-use objloc_core::io::session::Rgb8;
-use objloc_core::types::geometry::{Camera, Iso3, iso_from_pose, yaw_of};
+use objloc_core::fuse::replay::{FrameStep, Observer, SessionData};
+use objloc_core::types::probs::TileProbs;
+use objloc_core::types::image::Rgb8;
+use objloc_core::types::geometry::{Camera, Iso3, yaw_of};
+use objloc_core::io::msgs::iso_from_pose;
 use rayon::prelude::*;
 
 /// What the fuse stream shows.
@@ -452,7 +454,7 @@ impl FuseViz {
         let stamp = step.frame.stamp_ns;
         rec.log(
             ODOMETRY_TRACK,
-            &rerun::LineStrips3D::new([track_until(&data.odom, stamp)]).with_colors([
+            &rerun::LineStrips3D::new([track_until(data.odom.poses(), stamp)]).with_colors([
                 rerun::Color::from_rgb(ODOM_RGB[0], ODOM_RGB[1], ODOM_RGB[2]),
             ]),
         )
@@ -460,7 +462,7 @@ impl FuseViz {
         if !data.ground_truth_poses.is_empty() {
             rec.log(
                 TRUTH_TRACK,
-                &rerun::LineStrips3D::new([track_until(&data.ground_truth_poses, stamp)])
+                &rerun::LineStrips3D::new([track_until(data.ground_truth_poses.poses(), stamp)])
                     .with_colors([rerun::Color::from_rgb(
                         TRUTH_RGB[0],
                         TRUTH_RGB[1],

@@ -179,12 +179,7 @@ pub fn recording_id(kind: &str, parts: &[&str]) -> String {
         h.update((p.len() as u64).to_le_bytes());
         h.update(p.as_bytes());
     }
-    let hex: String = h
-        .finalize()
-        .iter()
-        .take(16)
-        .map(|b| format!("{b:02x}"))
-        .collect();
+    let hex = objloc_core::types::digest::hex(&h.finalize()[..16]);
     format!("{APP_ID}-{kind}-{hex}")
 }
 

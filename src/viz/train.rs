@@ -11,7 +11,6 @@ use rerun::RecordingStream;
 
 use super::fuse::{depth_image, log_frame_and_probs, upscale};
 use super::{TIMELINE_FRAME, TIMELINE_LOG_TIME, VizError, log_err, viridis};
-use objloc_core::fuse::replay::TileProbs;
 use objloc_core::learn::dataset::LoadedSession;
 use objloc_core::learn::model::Model;
 
@@ -98,21 +97,15 @@ pub fn log_training_frames(
             );
             rec.set_time_sequence(TIMELINE_FRAME, index);
             index += 1;
-            let probs = |m: objloc_core::learn::model::ProbMap| TileProbs {
-                rows: m.rows,
-                cols: m.cols,
-                tile_px: m.tile_px,
-                p: m.p,
-            };
             log_frame_and_probs(
                 rec,
                 "train/frame",
                 &f.image,
-                &probs(model.predict(&f.image)),
+                &model.predict(&f.image),
             )?;
             if let Some(region) = &model.region {
                 let p = upscale(
-                    &probs(region.predict(&f.image)),
+                    &region.predict(&f.image),
                     f.image.width,
                     f.image.height,
                 );

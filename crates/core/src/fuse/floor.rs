@@ -21,7 +21,7 @@
 
 use nalgebra::{Point3, Vector3};
 
-use crate::io::session::Rgb8;
+use crate::types::image::Rgb8;
 use crate::types::geometry::{Camera, Iso3, yaw_of};
 
 /// Settings of the floor term. The defaults were chosen by a sweep over 20 sessions (shipped

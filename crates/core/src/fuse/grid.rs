@@ -289,7 +289,7 @@ impl Grid {
             let bytes: Vec<u8> = chunk.iter().flat_map(|v| v.to_le_bytes()).collect();
             h.update(&bytes);
         }
-        h.finalize().iter().map(|b| format!("{b:02x}")).collect()
+        crate::types::digest::hex(&h.finalize())
     }
 }
 

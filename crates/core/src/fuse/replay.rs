@@ -26,43 +26,13 @@ use crate::fuse::refine::{
     detection_clusters, landmarks, motion_covariance, propagate, refine, sightings,
 };
 use crate::io::msgs::GroundTruth;
-use crate::io::session::{At, Rgb8, Role, SessionError, SessionMsg, SessionReader, fmt_ns};
-use crate::types::geometry::{Camera, Iso3, interpolate, iso_from_parts, iso_from_pose, yaw_of};
+use crate::io::session::{At, Role, SessionError, SessionMsg, SessionReader, fmt_ns};
+use crate::types::image::Rgb8;
+use crate::types::track::PoseTrack;
+use crate::types::probs::{FrameClassifier, TileProbs};
+use crate::types::geometry::{Camera, Iso3, iso_from_parts, yaw_of};
+use crate::io::msgs::iso_from_pose;
 
-/// A frame is posed when the odometry reaches within this of its stamp on both sides (or
-/// one side, at the ends of the log).
-pub const POSE_TOLERANCE_NS: i64 = 50_000_000;
-
-/// Tile probabilities of one frame, row-major, tiles aligned at pixel (0, 0).
-#[derive(Debug, Clone, PartialEq)]
-pub struct TileProbs {
-    pub rows: usize,
-    pub cols: usize,
-    pub tile_px: u32,
-    pub p: Vec<f32>,
-}
-
-/// What turns a frame into tile probabilities (the decision tree, or a stand-in in tests).
-pub trait FrameClassifier: Sync {
-    fn classify(&self, img: &Rgb8) -> TileProbs;
-    /// Fraction of positive training examples: the default prior of the grid.
-    fn base_rate(&self) -> f64;
-}
-
-impl FrameClassifier for crate::learn::model::Model {
-    fn classify(&self, img: &Rgb8) -> TileProbs {
-        let m = self.predict(img);
-        TileProbs {
-            rows: m.rows,
-            cols: m.cols,
-            tile_px: m.tile_px,
-            p: m.p,
-        }
-    }
-    fn base_rate(&self) -> f64 {
-        self.base_rate
-    }
-}
 
 #[derive(Debug, Error)]
 pub enum ReplayError {
@@ -177,24 +147,25 @@ pub struct SessionData {
     /// base_link -> camera optical frame, from /tf_static.
     pub base_from_camera: Iso3,
     /// (stamp, odom_from_base), sorted by stamp.
-    pub odom: Vec<(i64, Iso3)>,
+    pub odom: PoseTrack,
     /// (stamp, v m/s, w rad/s), sorted by stamp.
     pub commands: Vec<(i64, f64, f64)>,
     pub frames: Vec<FrameRef>,
-    pub ground_truth_poses: Vec<(i64, Iso3)>,
+    pub ground_truth_poses: PoseTrack,
     pub ground_truth: Option<GroundTruth>,
     pub warnings: Vec<String>,
 }
 
 impl SessionData {
     /// Pose of base_link in odom at `stamp_ns`, interpolated; `None` when the odometry does
-    /// not reach within [`POSE_TOLERANCE_NS`] of it.
+    /// not reach within [`crate::types::track::POSE_TOLERANCE_NS`] of it.
     pub fn odom_at(&self, stamp_ns: i64) -> Option<Iso3> {
-        pose_at(&self.odom, stamp_ns)
+        self.odom.at(stamp_ns)
     }
 
+    /// Pose of base_link from /ground_truth/pose at `stamp_ns`, as [`SessionData::odom_at`].
     pub fn ground_truth_at(&self, stamp_ns: i64) -> Option<Iso3> {
-        pose_at(&self.ground_truth_poses, stamp_ns)
+        self.ground_truth_poses.at(stamp_ns)
     }
 
     /// Default grid bounds: the box around every camera position, padded by
@@ -228,24 +199,6 @@ impl SessionData {
         }
         let top = hi[2] + 0.5;
         Some(([lo[0], lo[1], 0.0], [hi[0], hi[1], top]))
-    }
-}
-
-fn pose_at(track: &[(i64, Iso3)], stamp_ns: i64) -> Option<Iso3> {
-    let i = track.partition_point(|(t, _)| *t < stamp_ns);
-    match (i.checked_sub(1).and_then(|j| track.get(j)), track.get(i)) {
-        (_, Some((t, p))) if *t == stamp_ns => Some(*p),
-        (Some((t0, p0)), Some((t1, p1))) => {
-            if stamp_ns - t0 > POSE_TOLERANCE_NS && t1 - stamp_ns > POSE_TOLERANCE_NS {
-                // A gap in the odometry: interpolating across it would invent a pose.
-                return None;
-            }
-            let s = (stamp_ns - t0) as f64 / (t1 - t0) as f64;
-            Some(interpolate(p0, p1, s))
-        }
-        (Some((t0, p0)), None) => (stamp_ns - t0 <= POSE_TOLERANCE_NS).then_some(*p0),
-        (None, Some((t1, p1))) => (t1 - stamp_ns <= POSE_TOLERANCE_NS).then_some(*p1),
-        (None, None) => None,
     }
 }
 
@@ -370,18 +323,18 @@ pub fn load_session(reader: &SessionReader) -> Result<SessionData, ReplayError> 
             reader.topics().odom
         ));
     }
-    odom.sort_by_key(|(t, _)| *t);
+
     commands.sort_by_key(|(t, _, _)| *t);
-    gt_poses.sort_by_key(|(t, _)| *t);
+
     Ok(SessionData {
         path,
         camera,
         camera_frame_id,
         base_from_camera: mount,
-        odom,
+        odom: PoseTrack::new(odom),
         commands,
         frames,
-        ground_truth_poses: gt_poses,
+        ground_truth_poses: PoseTrack::new(gt_poses),
         ground_truth,
         warnings,
     })
@@ -1333,28 +1286,3 @@ pub fn project_point(camera: &Camera, odom_from_camera: &Iso3, p: [f64; 3]) -> O
     camera.project(&(odom_from_camera.inverse() * Point3::new(p[0], p[1], p[2])))
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::types::geometry::iso_from_xy_yaw;
-
-    #[test]
-    fn pose_interpolates_and_refuses_gaps() {
-        let track = vec![
-            (0, iso_from_xy_yaw(0.0, 0.0, 0.0)),
-            (100_000_000, iso_from_xy_yaw(1.0, 0.0, 0.0)),
-            (1_100_000_000, iso_from_xy_yaw(2.0, 0.0, 0.0)),
-        ];
-        let p = pose_at(&track, 25_000_000).unwrap();
-        assert!((p.translation.x - 0.25).abs() < 1e-12);
-        // 40 ms after a pose, within tolerance: interpolated across the long interval.
-        let p = pose_at(&track, 140_000_000).unwrap();
-        assert!((p.translation.x - 1.04).abs() < 1e-12);
-        // 0.5 s from both ends: a gap, no pose.
-        assert!(pose_at(&track, 600_000_000).is_none());
-        // Within 50 ms past the end: the last pose; beyond: none.
-        assert!(pose_at(&track, 1_140_000_000).is_some());
-        assert!(pose_at(&track, 1_160_000_000).is_none());
-        assert!(pose_at(&track, -60_000_000).is_none());
-    }
-}

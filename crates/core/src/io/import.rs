@@ -25,10 +25,12 @@ use crate::io::msgs::{
     TransformStamped, Twist,
 };
 use crate::io::session::{SessionError, SessionWriter, Topics};
-use crate::types::geometry::{Iso3, interpolate, iso_from_parts, pose_from_iso};
+use crate::types::geometry::{Iso3, iso_from_parts};
+use crate::types::track::PoseTrack;
+use crate::io::msgs::pose_from_iso;
 
 /// An image stamp may lie this far outside the trajectory's time span.
-pub const MAX_EXTRAPOLATION_NS: i64 = 50_000_000;
+pub const MAX_EXTRAPOLATION_NS: i64 = crate::types::track::POSE_TOLERANCE_NS;
 const IMAGE_EXTENSIONS: [&str; 3] = ["png", "jpg", "jpeg"];
 
 #[derive(Debug, Error)]
@@ -253,31 +255,18 @@ fn list_images(dir: &Path) -> Result<Vec<PathBuf>, ImportError> {
     Ok(files)
 }
 
-/// The camera pose at `stamp_ns` by interpolation, or why not.
+/// The camera pose at `stamp_ns` by interpolation (across any interval: a trajectory may be
+/// sparse by design), at most [`MAX_EXTRAPOLATION_NS`] beyond its ends; or why not.
 fn pose_at(traj: &[TrajectoryPose], stamp_ns: i64) -> Result<Iso3, String> {
-    let (first, last) = match (traj.first(), traj.last()) {
-        (Some(f), Some(l)) => (f, l),
-        _ => return Err("empty trajectory".into()),
-    };
-    if stamp_ns < first.stamp_ns - MAX_EXTRAPOLATION_NS
-        || stamp_ns > last.stamp_ns + MAX_EXTRAPOLATION_NS
-    {
-        return Err(format!(
+    let track = PoseTrack::new(traj.iter().map(|p| (p.stamp_ns, p.world_from_camera)).collect());
+    track.interpolated(stamp_ns).ok_or_else(|| match (traj.first(), traj.last()) {
+        (Some(first), Some(last)) => format!(
             "stamp {} is outside the trajectory ({} to {}) by more than 50 ms",
             crate::io::session::fmt_ns(stamp_ns.max(0) as u64),
             crate::io::session::fmt_ns(first.stamp_ns.max(0) as u64),
             crate::io::session::fmt_ns(last.stamp_ns.max(0) as u64)
-        ));
-    }
-    let i = traj.partition_point(|p| p.stamp_ns <= stamp_ns);
-    Ok(match i {
-        0 => first.world_from_camera,
-        i if i >= traj.len() => last.world_from_camera,
-        i => {
-            let (a, b) = (&traj[i - 1], &traj[i]);
-            let s = (stamp_ns - a.stamp_ns) as f64 / (b.stamp_ns - a.stamp_ns) as f64;
-            interpolate(&a.world_from_camera, &b.world_from_camera, s)
-        }
+        ),
+        _ => "empty trajectory".into(),
     })
 }
 
@@ -435,7 +424,7 @@ fn write_session(
             .into_rgb8();
         let (w, h) = img.dimensions();
         let png =
-            crate::sim::encode_png(w, h, img.as_raw()).map_err(|what| ImportError::Invalid {
+            crate::types::image::encode_png(w, h, img.as_raw()).map_err(|what| ImportError::Invalid {
                 path: path.clone(),
                 what,
             })?;

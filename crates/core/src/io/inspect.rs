@@ -14,8 +14,6 @@ use serde::Serialize;
 use crate::io::session::{Frame, Role, SessionError, SessionMsg, SessionReader, Topics, fmt_ns};
 use crate::types::geometry::Camera;
 
-/// A frame counts as posed when an /odom message lies within this of its stamp.
-pub const POSE_TOLERANCE_NS: i64 = 50_000_000;
 
 #[derive(Debug, Clone, Serialize, PartialEq)]
 pub struct TopicSummary {
@@ -197,15 +195,7 @@ pub fn summarize_reader(reader: &SessionReader) -> Result<Summary, SessionError>
     odom_stamps.sort_unstable();
     let unposed: Vec<&(i64, u64)> = frame_stamps
         .iter()
-        .filter(|(stamp, _)| {
-            let i = odom_stamps.partition_point(|t| *t < *stamp);
-            let near = |j: usize| {
-                odom_stamps
-                    .get(j)
-                    .is_some_and(|t| (t - stamp).abs() <= POSE_TOLERANCE_NS)
-            };
-            !(near(i) || (i > 0 && near(i - 1)))
-        })
+        .filter(|(stamp, _)| !crate::types::track::covered(&odom_stamps, *stamp))
         .collect();
     if let Some((_, lt)) = unposed.first() {
         warnings.push(format!(

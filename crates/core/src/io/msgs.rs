@@ -700,3 +700,24 @@ mod tests {
         assert_eq!(time_to_ns(-1, 999_999_999), -1);
     }
 }
+
+impl crate::types::geometry::Camera {
+    /// From CameraInfo K; `None` unless width, height and focal lengths are positive and finite.
+    pub fn from_info(info: &CameraInfo) -> Option<Self> {
+        Self::from_k(info.width, info.height, info.k)
+    }
+}
+
+/// Pose from a ROS `Pose`; `None` if a value is not finite or the quaternion is degenerate.
+pub fn iso_from_pose(p: &Pose) -> Option<crate::types::geometry::Iso3> {
+    crate::types::geometry::iso_from_parts(p.position, p.orientation_xyzw)
+}
+
+/// The ROS `Pose` of a transform.
+pub fn pose_from_iso(iso: &crate::types::geometry::Iso3) -> Pose {
+    let q = iso.rotation.quaternion();
+    Pose {
+        position: [iso.translation.x, iso.translation.y, iso.translation.z],
+        orientation_xyzw: [q.i, q.j, q.k, q.w],
+    }
+}

@@ -18,7 +18,8 @@ use rayon::prelude::*;
 use thiserror::Error;
 
 use crate::io::msgs::RegionOfInterest;
-use crate::io::session::{At, Frame, Rgb8, SessionError, SessionMsg, SessionReader, Topics};
+use crate::io::session::{At, Frame, SessionError, SessionMsg, SessionReader, Topics};
+use crate::types::image::Rgb8;
 use crate::learn::features::{
     FeatureKind, TileFeature, bin_image, feature_count, histograms_of_bins, with_context,
 };
@@ -71,11 +72,6 @@ pub struct LoadedSession {
     pub frames: Vec<SessionFrame>,
 }
 
-pub fn sha256_hex(bytes: &[u8]) -> String {
-    use sha2::{Digest, Sha256};
-    let digest = Sha256::digest(bytes);
-    digest.iter().map(|b| format!("{b:02x}")).collect()
-}
 
 /// Reads a session's frames and labels. `object`: use only labels naming it (None: all).
 /// `labelled_only`: skip decoding frames without a label (training needs only those).
@@ -89,7 +85,7 @@ pub fn load_session(
         path: path.to_owned(),
         source,
     })?;
-    let sha256 = sha256_hex(&bytes);
+    let sha256 = crate::types::digest::sha256_hex(&bytes);
     let reader = SessionReader::from_bytes(path, &bytes, topics)?;
     drop(bytes);
     reader.require_frames()?;

@@ -311,7 +311,7 @@ pub fn with_context(h: TileHistograms, radius: u32) -> TileHistograms {
 /// The bin of every pixel of `img`, row-major: computed once per frame and shared by the
 /// shifted grids of training, since a colour conversion per pixel per grid was a fifth of
 /// the training time.
-pub fn bin_image(img: &crate::io::session::Rgb8, feature: &dyn TileFeature) -> Vec<u16> {
+pub fn bin_image(img: &crate::types::image::Rgb8, feature: &dyn TileFeature) -> Vec<u16> {
     debug_assert!(feature.bins() <= u16::MAX as usize + 1);
     img.data
         .chunks_exact(3)
@@ -322,7 +322,7 @@ pub fn bin_image(img: &crate::io::session::Rgb8, feature: &dyn TileFeature) -> V
 /// Histograms of the grid of whole tiles starting at pixel (`dx`, `dy`).
 /// `tile_px` must be at least 1 and at most 255 (counts are u16).
 pub fn tile_histograms(
-    img: &crate::io::session::Rgb8,
+    img: &crate::types::image::Rgb8,
     feature: &dyn TileFeature,
     tile_px: u32,
     dx: u32,
@@ -379,7 +379,7 @@ pub fn histograms_of_bins(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::io::session::Rgb8;
+    use crate::types::image::Rgb8;
 
     /// The sliding sums and the division by multiplication against the plain definition:
     /// every window summed tile by tile, divided with `/`, on an uneven grid with counts up

@@ -17,7 +17,8 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
-use crate::io::session::Rgb8;
+use crate::types::image::Rgb8;
+use crate::types::probs::{FrameClassifier, TileProbs};
 use crate::learn::dataset::{
     ExampleParams, ExampleSet, LoadedSession, TILE_PX_RANGE, build_examples,
 };
@@ -129,44 +130,12 @@ pub struct Model {
     pub region: Option<Box<Model>>,
 }
 
-/// Per-tile probabilities of one frame, row-major: `p[r * cols + c]`.
-#[derive(Debug, Clone, PartialEq)]
-pub struct ProbMap {
-    pub rows: usize,
-    pub cols: usize,
-    pub tile_px: u32,
-    pub p: Vec<f32>,
-}
-
-impl ProbMap {
-    /// The frame in grey with each tile tinted red by its probability (edge pixels outside
-    /// whole tiles stay grey).
-    pub fn heatmap(&self, img: &Rgb8) -> Rgb8 {
-        let mut data = Vec::with_capacity(img.data.len());
-        let t = self.tile_px as usize;
-        for y in 0..img.height as usize {
-            for x in 0..img.width as usize {
-                let i = (y * img.width as usize + x) * 3;
-                let [r, g, b] = [img.data[i], img.data[i + 1], img.data[i + 2]];
-                // Rec. 601 luma, halved so the red tint stands out.
-                let grey = (299 * r as u32 + 587 * g as u32 + 114 * b as u32) / 2000;
-                let (tr, tc) = (y / t.max(1), x / t.max(1));
-                let p = if tr < self.rows && tc < self.cols {
-                    self.p[tr * self.cols + tc].clamp(0.0, 1.0)
-                } else {
-                    0.0
-                };
-                let g = grey as f32;
-                data.push((g + p * (255.0 - g)).round() as u8);
-                data.push((g * (1.0 - p)).round() as u8);
-                data.push((g * (1.0 - p)).round() as u8);
-            }
-        }
-        Rgb8 {
-            width: img.width,
-            height: img.height,
-            data,
-        }
+impl FrameClassifier for Model {
+    fn classify(&self, img: &Rgb8) -> TileProbs {
+        self.predict(img)
+    }
+    fn base_rate(&self) -> f64 {
+        self.base_rate
     }
 }
 
@@ -277,7 +246,7 @@ impl Model {
 
     /// Probability per tile of a frame, row-major, tiles aligned at pixel (0,0), partial edge
     /// tiles dropped.
-    pub fn predict(&self, img: &Rgb8) -> ProbMap {
+    pub fn predict(&self, img: &Rgb8) -> TileProbs {
         let h = with_context(
             tile_histograms(img, &self.features, self.tile_px, 0, 0),
             self.context_tiles,
@@ -286,7 +255,7 @@ impl Model {
         let p = (0..h.rows * h.cols)
             .map(|t| self.tree.predict_counts(h.tile(t), denom) as f32)
             .collect();
-        ProbMap {
+        TileProbs {
             rows: h.rows,
             cols: h.cols,
             tile_px: self.tile_px,
@@ -447,10 +416,10 @@ impl Model {
 pub struct SessionPrediction {
     pub stamps_ns: Vec<i64>,
     /// The region head's maps ([`Model::region`]; the tile head's without one): `probs.npy`.
-    pub maps: Vec<ProbMap>,
+    pub maps: Vec<TileProbs>,
     /// The tile head's maps, what the fuser integrates: `tile_probs.npy` (the same as `maps`
     /// for a model without a region head).
-    pub tile_maps: Vec<ProbMap>,
+    pub tile_maps: Vec<TileProbs>,
     /// Tile metrics of `maps` over the frames that have a label (None: no labelled frame).
     pub labelled: Option<Metrics>,
     /// The same for `tile_maps`.
@@ -480,12 +449,12 @@ impl Model {
                 });
             }
         }
-        let tile_maps: Vec<ProbMap> = session
+        let tile_maps: Vec<TileProbs> = session
             .frames
             .par_iter()
             .map(|f| self.predict(&f.image))
             .collect();
-        let maps: Vec<ProbMap> = match &self.region {
+        let maps: Vec<TileProbs> = match &self.region {
             Some(region) => session
                 .frames
                 .par_iter()
@@ -498,7 +467,7 @@ impl Model {
             .iter()
             .filter(|f| f.regions.is_some())
             .count();
-        let score = |maps: &[ProbMap]| {
+        let score = |maps: &[TileProbs]| {
             let mut p = Vec::new();
             let mut y = Vec::new();
             for (f, m) in session.frames.iter().zip(maps) {

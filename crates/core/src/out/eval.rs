@@ -12,7 +12,9 @@ use crate::fuse::grid::GridSpec;
 use crate::fuse::objects::Object;
 use crate::io::msgs::GroundTruth;
 use crate::out::report::Report;
-use crate::types::geometry::{Iso3, iso_from_pose};
+use crate::types::geometry::Iso3;
+use crate::types::track::PoseTrack;
+use crate::io::msgs::iso_from_pose;
 
 /// An estimate farther than this from a true box's centre (or than half the box's diagonal,
 /// if larger) cannot be that box.
@@ -240,25 +242,14 @@ pub struct TrajectoryError {
     pub odometry_max_m: f64,
 }
 
-/// Position of the true track at `stamp_ns` (exact stamp, or the nearest within 50 ms).
-fn truth_at(truth: &[(i64, [f64; 3])], stamp_ns: i64) -> Option<[f64; 3]> {
-    let i = truth.partition_point(|(t, _)| *t < stamp_ns);
-    [i.checked_sub(1), Some(i)]
-        .into_iter()
-        .flatten()
-        .filter_map(|j| truth.get(j))
-        .filter(|(t, _)| (t - stamp_ns).abs() <= 50_000_000)
-        .min_by_key(|(t, _)| (t - stamp_ns).abs())
-        .map(|(_, p)| *p)
-}
-
-/// The trajectory error of `report`'s frames against `truth` (stamp-sorted true positions).
-pub fn trajectory_error(report: &Report, truth: &[(i64, [f64; 3])]) -> Option<TrajectoryError> {
+/// The trajectory error of `report`'s frames against the `truth` track (looked up at each
+/// frame's stamp like the replay's poses).
+pub fn trajectory_error(report: &Report, truth: &PoseTrack) -> Option<TrajectoryError> {
     let pairs: Vec<(f64, f64)> = report
         .per_frame
         .iter()
         .filter_map(|f| {
-            let t = truth_at(truth, f.stamp_ns)?;
+            let t: [f64; 3] = truth.at(f.stamp_ns)?.translation.vector.into();
             Some((dist(f.odom_position_m, t), dist(f.position_m, t)))
         })
         .collect();
@@ -354,7 +345,7 @@ pub fn evaluate(
     report_name: &str,
     report: &Report,
     truth: &[TrueObject],
-    truth_track: &[(i64, [f64; 3])],
+    truth_track: &PoseTrack,
 ) -> Evaluation {
     let (matches, missed, spurious) = match_objects(&report.objects, truth);
     let spec = GridSpec {
@@ -564,16 +555,16 @@ mod tests {
             warnings: Vec::new(),
             timing_ms: Default::default(),
         };
-        let truth = vec![
-            (1_000_000_000, [0.0, 0.0, 0.0]),
-            (2_040_000_000, [1.0, 0.0, 0.0]),
-        ];
+        let truth = PoseTrack::new(vec![
+            (1_000_000_000, iso_from_xy_yaw(0.0, 0.0, 0.0)),
+            (2_040_000_000, iso_from_xy_yaw(1.0, 0.0, 0.0)),
+        ]);
         let t = trajectory_error(&report, &truth).unwrap();
         assert_eq!(t.frames, 2);
         // /odom errors 0 and 0.3: RMSE sqrt(0.09 / 2); fused errors 0 and 0.4: sqrt(0.16 / 2).
         assert!((t.odometry_ate_m - (0.09f64 / 2.0).sqrt()).abs() < 1e-12);
         assert!((t.fused_ate_m - (0.16f64 / 2.0).sqrt()).abs() < 1e-12);
         assert!((t.odometry_max_m - 0.3).abs() < 1e-12);
-        assert!(trajectory_error(&report, &[]).is_none());
+        assert!(trajectory_error(&report, &PoseTrack::default()).is_none());
     }
 }

@@ -22,7 +22,10 @@ use crate::io::msgs::{
     RegionOfInterest, TfMessage, TransformStamped, Twist, TwistStamped,
 };
 use crate::io::session::{SessionError, SessionWriter, Topics};
-use crate::types::geometry::{Iso3, camera_mount, iso_from_xy_yaw, pose_from_iso};
+use crate::types::geometry::{Iso3, camera_mount, iso_from_xy_yaw};
+use crate::io::msgs::pose_from_iso;
+use crate::types::geometry::wrap_angle;
+use crate::types::image::encode_png;
 pub use render::{FrameJitter, Rendered, Renderer};
 pub use robot::{Event, Pose2, Rng, SpeedNoise, Stop};
 pub use scene::{BUILTIN_SCENES, Scene, Shape};
@@ -144,7 +147,7 @@ pub fn plan_stops(scene: &Scene, opts: &SimOptions) -> Result<Vec<Stop>, SimErro
     let facing = |bearing_rad: f64, distance_m: f64| Pose2 {
         x_m: p.target_m[0] + distance_m * bearing_rad.cos(),
         y_m: p.target_m[1] + distance_m * bearing_rad.sin(),
-        yaw_rad: robot::wrap_angle(bearing_rad + PI),
+        yaw_rad: wrap_angle(bearing_rad + PI),
     };
     match opts.kind {
         Kind::Tour => {
@@ -183,7 +186,7 @@ pub fn plan_stops(scene: &Scene, opts: &SimOptions) -> Result<Vec<Stop>, SimErro
                 pose: Pose2 {
                     x_m: s.x_m,
                     y_m: s.y_m,
-                    yaw_rad: robot::wrap_angle(s.yaw_deg.to_radians()),
+                    yaw_rad: wrap_angle(s.yaw_deg.to_radians()),
                 },
                 background: true,
             });
@@ -288,17 +291,6 @@ pub fn label_regions(
             })
         })
         .collect()
-}
-
-/// PNG bytes of an RGB8 frame (fast deflate: frames are noisy and barely compress anyway).
-pub fn encode_png(width: u32, height: u32, rgb: &[u8]) -> Result<Vec<u8>, String> {
-    use image::ImageEncoder;
-    use image::codecs::png::{CompressionType, FilterType, PngEncoder};
-    let mut out = Vec::with_capacity(rgb.len());
-    PngEncoder::new_with_quality(&mut out, CompressionType::Fast, FilterType::Sub)
-        .write_image(rgb, width, height, image::ExtendedColorType::Rgb8)
-        .map_err(|e| e.to_string())?;
-    Ok(out)
 }
 
 /// Draws 1-pixel rectangle outlines (green) on a copy of an RGB8 frame, for --dump-frames.
@@ -642,7 +634,7 @@ mod tests {
                 s.path.target_m[1] - st.pose.y_m,
             );
             assert!((dx.hypot(dy) - s.path.tour_radius_m).abs() < 1e-9);
-            assert!(robot::wrap_angle(dy.atan2(dx) - st.pose.yaw_rad).abs() < 1e-9);
+            assert!(wrap_angle(dy.atan2(dx) - st.pose.yaw_rad).abs() < 1e-9);
         }
         let train = plan_stops(&s, &SimOptions::new(Kind::Train, 1)).unwrap();
         assert_eq!(train.iter().filter(|s| !s.background).count(), 3);

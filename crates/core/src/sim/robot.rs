@@ -7,7 +7,7 @@
 //! exactly right. All randomness comes from a seeded [`Rng`]; the timeline is a pure function
 //! of (stops, speeds, noise, seed).
 
-use std::f64::consts::PI;
+use crate::types::geometry::wrap_angle;
 
 /// Pause between one command's end and the next command's start.
 pub const SETTLE_NS: i64 = 300_000_000;
@@ -92,11 +92,6 @@ impl Event {
     }
 }
 
-/// Angle wrapped into (-pi, pi].
-pub fn wrap_angle(a: f64) -> f64 {
-    let w = (a + PI).rem_euclid(2.0 * PI) - PI;
-    if w <= -PI { w + 2.0 * PI } else { w }
-}
 
 #[derive(Debug, Clone, Copy)]
 enum Command {
@@ -239,6 +234,7 @@ pub fn simulate(
 
 #[cfg(test)]
 mod tests {
+    use std::f64::consts::PI;
     use super::*;
 
     fn stop(x: f64, y: f64, yaw: f64) -> Stop {

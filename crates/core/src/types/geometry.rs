@@ -7,15 +7,10 @@
 
 use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
 
-use crate::io::msgs::{CameraInfo, Pose};
-
 pub type Iso3 = Isometry3<f64>;
 
-/// Pose from a ROS `Pose`; `None` if a value is not finite or the quaternion is degenerate.
-pub fn iso_from_pose(p: &Pose) -> Option<Iso3> {
-    iso_from_parts(p.position, p.orientation_xyzw)
-}
-
+/// Pose from a translation and a quaternion (x, y, z, w); `None` if a value is not finite or
+/// the quaternion is degenerate.
 pub fn iso_from_parts(t: [f64; 3], q_xyzw: [f64; 4]) -> Option<Iso3> {
     if !t.iter().chain(q_xyzw.iter()).all(|v| v.is_finite()) {
         return None;
@@ -29,14 +24,6 @@ pub fn iso_from_parts(t: [f64; 3], q_xyzw: [f64; 4]) -> Option<Iso3> {
         Translation3::new(t[0], t[1], t[2]),
         UnitQuaternion::from_quaternion(q),
     ))
-}
-
-pub fn pose_from_iso(iso: &Iso3) -> Pose {
-    let q = iso.rotation.quaternion();
-    Pose {
-        position: [iso.translation.x, iso.translation.y, iso.translation.z],
-        orientation_xyzw: [q.i, q.j, q.k, q.w],
-    }
 }
 
 /// A planar robot pose in `odom`: position (x, y) and heading about z.
@@ -54,14 +41,12 @@ pub fn yaw_of(iso: &Iso3) -> f64 {
     m[(1, 0)].atan2(m[(0, 0)])
 }
 
-/// An angle wrapped into (-pi, pi].
+/// An angle wrapped into (-pi, pi]. (The simulator's recordings depend on this formula bit
+/// for bit.)
 pub fn wrap_angle(a: f64) -> f64 {
-    let w = a.rem_euclid(2.0 * std::f64::consts::PI);
-    if w > std::f64::consts::PI {
-        w - 2.0 * std::f64::consts::PI
-    } else {
-        w
-    }
+    use std::f64::consts::PI;
+    let w = (a + PI).rem_euclid(2.0 * PI) - PI;
+    if w <= -PI { w + 2.0 * PI } else { w }
 }
 
 /// The `base_link -> camera_optical_frame` mount: camera at `position` in base_link, looking
@@ -100,12 +85,12 @@ pub struct Camera {
 }
 
 impl Camera {
-    /// From CameraInfo K; `None` unless width, height and focal lengths are positive and finite.
-    pub fn from_info(info: &CameraInfo) -> Option<Self> {
-        let k = info.k;
+    /// From a K matrix (row-major, as in CameraInfo); `None` unless width, height and focal
+    /// lengths are positive and finite.
+    pub fn from_k(width: u32, height: u32, k: [f64; 9]) -> Option<Self> {
         let c = Self {
-            width: info.width,
-            height: info.height,
+            width,
+            height,
             fx: k[0],
             fy: k[4],
             cx: k[2],

@@ -1,6 +1,11 @@
-//! Shared values below every stage: planar and 3D geometry, the camera model, a seeded RNG.
+//! Shared values below every stage: planar and 3D geometry, the camera model, decoded
+//! images, hex digests, tile probabilities, pose tracks, a seeded RNG.
 //!
 //! May import: nothing of the crate (only external crates).
 
+pub mod digest;
 pub mod geometry;
+pub mod image;
+pub mod probs;
 pub mod rng;
+pub mod track;

@@ -16,6 +16,7 @@ use std::path::PathBuf;
 use thiserror::Error;
 
 use crate::io::cdr::CdrError;
+use crate::types::image::Rgb8;
 use crate::io::msgs::{
     CameraInfo, CompressedImage, GroundTruth, Image, ObjectLabel, Odometry, PoseStamped,
     RosMessage, TfMessage, TwistStamped,
@@ -253,22 +254,6 @@ pub struct Frame {
     pub stamp_ns: i64,
     pub frame_id: String,
     pub pixels: FramePixels,
-}
-
-/// A decoded 8-bit RGB image, row-major, 3 bytes per pixel.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Rgb8 {
-    pub width: u32,
-    pub height: u32,
-    pub data: Vec<u8>,
-}
-
-impl Rgb8 {
-    #[inline]
-    pub fn pixel(&self, x: u32, y: u32) -> [u8; 3] {
-        let i = (y as usize * self.width as usize + x as usize) * 3;
-        [self.data[i], self.data[i + 1], self.data[i + 2]]
-    }
 }
 
 impl Frame {
