@@ -9,7 +9,8 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use objloc_core::io::msgs::RegionOfInterest;
-use objloc_core::io::session::{Rgb8, Topics};
+use objloc_core::io::session::Topics;
+use objloc_core::types::image::Rgb8;
 use objloc_core::learn::dataset::{LoadedSession, SessionFrame, load_session};
 use objloc_core::learn::features::FeatureKind;
 use objloc_core::learn::model::{TrainConfig, examples, fit_model};

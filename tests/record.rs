@@ -9,7 +9,8 @@ use std::time::{Duration, Instant};
 
 use nalgebra::Point3;
 use objloc_core::io::session::{SessionMsg, SessionReader, Topics};
-use objloc_core::types::geometry::{Camera, iso_from_parts, iso_from_pose};
+use objloc_core::types::geometry::{Camera, iso_from_parts};
+use objloc_core::io::msgs::iso_from_pose;
 
 const BIN: &str = env!("CARGO_BIN_EXE_objloc");
 

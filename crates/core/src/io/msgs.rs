@@ -628,6 +628,14 @@ mod tests {
     use super::*;
 
     #[test]
+    fn pose_and_iso_round_trip() {
+        let p = crate::types::geometry::iso_from_xy_yaw(1.0, 2.0, 2.5);
+        let back = iso_from_pose(&pose_from_iso(&p)).unwrap();
+        assert!((back.translation.vector - p.translation.vector).norm() < 1e-12);
+        assert!((back.rotation.angle_to(&p.rotation)).abs() < 1e-12);
+    }
+
+    #[test]
     fn odometry_schema_lists_every_dependency_once() {
         let s = schema_text(Odometry::TYPE).unwrap();
         for dep in [

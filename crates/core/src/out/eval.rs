@@ -547,7 +547,8 @@ mod tests {
             object_cells: Vec::new(),
             per_frame: vec![
                 frame(0, 1_000_000_000, [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]),
-                frame(1, 2_000_000_000, [1.3, 0.0, 0.0], [1.0, 0.4, 0.0]),
+                // 40 ms after the last true pose: within tolerance, that pose.
+                frame(1, 2_040_000_000, [1.3, 0.0, 0.0], [1.0, 0.4, 0.0]),
                 // No true pose within 50 ms: not counted.
                 frame(2, 2_900_000_000, [9.0, 9.0, 0.0], [9.0, 9.0, 0.0]),
             ],
@@ -557,7 +558,7 @@ mod tests {
         };
         let truth = PoseTrack::new(vec![
             (1_000_000_000, iso_from_xy_yaw(0.0, 0.0, 0.0)),
-            (2_040_000_000, iso_from_xy_yaw(1.0, 0.0, 0.0)),
+            (2_000_000_000, iso_from_xy_yaw(1.0, 0.0, 0.0)),
         ]);
         let t = trajectory_error(&report, &truth).unwrap();
         assert_eq!(t.frames, 2);

@@ -177,7 +177,8 @@ mod tests {
         assert!(close(yaw_of(&p), 2.5));
         assert!(iso_from_parts([0.0; 3], [0.0; 4]).is_none());
         assert!(iso_from_parts([f64::NAN, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]).is_none());
-        let back = iso_from_pose(&pose_from_iso(&p)).unwrap();
+        let q = p.rotation.quaternion();
+        let back = iso_from_parts(p.translation.vector.into(), [q.i, q.j, q.k, q.w]).unwrap();
         assert!((back.translation.vector - p.translation.vector).norm() < 1e-12);
     }
 }
