@@ -96,22 +96,15 @@ pub fn find_objects(grid: &Grid, params: &ObjectParams) -> Vec<Object> {
         .collect()
 }
 
-/// Like [`find_objects`], with each object's member cells (flat indices, ascending).
-pub fn find_objects_with_cells(grid: &Grid, params: &ObjectParams) -> Vec<(Object, Vec<usize>)> {
-    let spec = grid.spec;
+/// The highest evidence (log-odds above the prior) of a cell seen by at least `min_views`
+/// frames; 0 when none is above the prior.
+fn peak_evidence(grid: &Grid, min_views: u16) -> f32 {
     let prior = grid.prior_log_odds();
-    let n = spec.cells();
-    let mut state = vec![NONE; n];
-    let mut seeds = Vec::new();
     // Eight running maxima over zipped slices (log-odds are never NaN, and a maximum does
     // not depend on the order it is taken in), so the compiler can vectorise the pass: it
     // runs over every cell once per frame during pose refinement.
     let lane_max = |acc: &mut f32, v: u16, l: f32| {
-        let e = if v >= params.min_views {
-            l - prior
-        } else {
-            0.0
-        };
+        let e = if v >= min_views { l - prior } else { 0.0 };
         if e > *acc {
             *acc = e;
         }
@@ -133,6 +126,17 @@ pub fn find_objects_with_cells(grid: &Grid, params: &ObjectParams) -> Vec<(Objec
             max_e = lane;
         }
     }
+    max_e
+}
+
+/// Like [`find_objects`], with each object's member cells (flat indices, ascending).
+pub fn find_objects_with_cells(grid: &Grid, params: &ObjectParams) -> Vec<(Object, Vec<usize>)> {
+    let spec = grid.spec;
+    let prior = grid.prior_log_odds();
+    let n = spec.cells();
+    let mut state = vec![NONE; n];
+    let mut seeds = Vec::new();
+    let max_e = peak_evidence(grid, params.min_views);
     if max_e <= 0.0 {
         return Vec::new();
     }

@@ -42,36 +42,26 @@
 //! Invariants: pure functions of their inputs, no I/O; without a landmark seen in the frame
 //! or floor seen before, or without a significant gain, the correction is zero.
 
-use nalgebra::{
-    Matrix2, Matrix2x3, Matrix3, Point3, SymmetricEigen, Translation3, UnitQuaternion, Vector2,
-    Vector3,
-};
+mod landmarks;
+mod search;
 
-use rayon::prelude::*;
+pub use landmarks::{
+    Consistency, DETECTION_DELTA, GATE_M, GATE_PX, Landmark, MAX_RAY_CHI2, MIN_RAY_SPREAD,
+    SIGMA_U_PX, SIGMA_V_PX, Sighting, detection_clusters, landmarks, sightings,
+};
+pub use search::{MIN_PROMINENCE, MIN_SEPARATION};
+
+use landmarks::{associate, image_covariance, project};
+use search::search;
+#[cfg(test)]
+use search::separated_margin;
+
+use nalgebra::{Matrix2, Matrix3, Translation3, UnitQuaternion, Vector2, Vector3};
+
 
 use crate::fuse::floor::{FloorMap, FloorPatch};
-use crate::fuse::grid::TileEvidence;
 use crate::fuse::motion::Segment;
 use crate::types::geometry::{Camera, Iso3, yaw_of};
-
-/// Tiles whose evidence is at least this (odds ratio e^3 = 20 against the prior) are
-/// detections.
-pub const DETECTION_DELTA: f32 = 3.0;
-/// Standard deviation of a cluster's centroid about its landmark's projection, horizontally
-/// and vertically, pixels (measured 1-3 px and 2-8 px across the shipped tours' views; the
-/// vertical spread comes from legs and shadows).
-pub const SIGMA_U_PX: f64 = 3.0;
-pub const SIGMA_V_PX: f64 = 8.0;
-/// A cluster further than this from a landmark's predicted position is not its sighting.
-pub const GATE_PX: f64 = 64.0;
-/// A ray passing further than this from an object's centroid is not a sighting of it.
-pub const GATE_M: f64 = 0.35;
-/// A ray missing its landmark by more than this (chi-square with 2 degrees of freedom,
-/// 99.7 %) is dropped from it.
-pub const MAX_RAY_CHI2: f64 = 11.8;
-/// Smallest eigenvalue of the rays' normal matrix for a landmark to be placed: rays from
-/// at least 15 degrees apart (1 - cos 15 deg = 0.034).
-pub const MIN_RAY_SPREAD: f64 = 0.034;
 
 /// Smallest gain in score (log-likelihood plus log prior, nats) for a correction to be
 /// applied. Measured: with exact odometry the best correction gains 0-0.8 (it fits the 1-3 px
@@ -327,330 +317,24 @@ pub fn propagate(
     cov
 }
 
-/// Clusters of detection tiles (8-connected), each as its evidence-weighted centroid in
-/// pixels, in row-major order of their first tile. Linking across gaps would join a chair's
-/// legs to its seat, but it also merged two chairs standing one behind the other in the
-/// two-chairs tour, whose merged centroid then pulled the pose 0.1 rad off.
-pub fn detection_clusters(ev: &TileEvidence) -> Vec<[f64; 2]> {
-    let tile = f64::from(ev.tile_px);
-    let (rows, cols) = (ev.rows, ev.cols);
-    let hot = |t: usize| ev.delta[t] >= DETECTION_DELTA;
-    let mut seen = vec![false; rows * cols];
-    let mut out = Vec::new();
-    for start in 0..rows * cols {
-        if seen[start] || !hot(start) {
-            continue;
-        }
-        seen[start] = true;
-        let mut stack = vec![start];
-        let (mut w, mut su, mut sv) = (0.0f64, 0.0f64, 0.0f64);
-        while let Some(t) = stack.pop() {
-            let (r, c) = (t / cols, t % cols);
-            let d = f64::from(ev.delta[t]);
-            w += d;
-            su += d * (c as f64 + 0.5) * tile;
-            sv += d * (r as f64 + 0.5) * tile;
-            for nr in r.saturating_sub(1)..=(r + 1).min(rows - 1) {
-                for nc in c.saturating_sub(1)..=(c + 1).min(cols - 1) {
-                    let n = nr * cols + nc;
-                    if !seen[n] && hot(n) {
-                        seen[n] = true;
-                        stack.push(n);
-                    }
-                }
-            }
-        }
-        out.push([su / w, sv / w]);
-    }
-    out
-}
-
-/// A ray in `odom` through a detection cluster's centroid, from the frame it was seen in.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Sighting {
-    pub frame: usize,
-    pub origin_m: Vector3<f64>,
-    /// Unit direction.
-    pub direction: Vector3<f64>,
-}
-
-/// The rays through a frame's detection clusters seen from `odom_from_camera`.
-pub fn sightings(
-    frame: usize,
-    clusters: &[[f64; 2]],
-    camera: &Camera,
-    odom_from_camera: &Iso3,
-) -> Vec<Sighting> {
-    clusters
-        .iter()
-        .map(|[u, v]| Sighting {
-            frame,
-            origin_m: odom_from_camera.translation.vector,
-            direction: odom_from_camera.rotation * camera.ray(*u, *v),
-        })
-        .collect()
-}
-
-/// Distance from `p` to the ray's line, metres (behind the origin counts as far).
-fn ray_distance(s: &Sighting, p: &Vector3<f64>) -> f64 {
-    let d = p - s.origin_m;
-    let along = d.dot(&s.direction);
-    if along <= 0.0 {
-        return f64::INFINITY;
-    }
-    (d - s.direction * along).norm()
-}
-
-/// Of `sightings` (in frame order), the one passing closest to `c` per frame, within `gate_m`,
-/// with its distance.
-fn closest_per_frame<'a>(
-    c: &Vector3<f64>,
-    sightings: &'a [Sighting],
-    gate_m: f64,
-) -> Vec<(f64, &'a Sighting)> {
-    let mut chosen: Vec<(f64, &Sighting)> = Vec::new();
-    for s in sightings {
-        let d = ray_distance(s, c);
-        if d > gate_m {
-            continue;
-        }
-        match chosen.last_mut() {
-            Some(last) if last.1.frame == s.frame => {
-                if d < last.0 {
-                    *last = (d, s);
-                }
-            }
-            _ => chosen.push((d, s)),
-        }
-    }
-    chosen
-}
-
-/// A landmark: a point in `odom` and the covariance of its position (m^2).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Landmark {
-    pub position_m: Vector3<f64>,
-    pub covariance_m2: Matrix3<f64>,
-}
-
-/// Places each object (given by its centroid in the belief) as a landmark: the weighted
-/// least-squares point of the rays that saw it, at most one per frame (the one passing
-/// closest, within [`GATE_M`]). A ray's sideways error is weighted by the horizontal pixel
-/// sigma, its up-down error by the vertical one, both scaled by the range to the centroid
-/// and the focal length, so the landmark's covariance comes out in metres. Objects seen from
-/// too narrow a spread of directions (fewer than two frames, or rays within 15 degrees) are
-/// left out.
-pub fn landmarks(
-    object_centroids: &[[f64; 3]],
-    sightings: &[Sighting],
-    focal_px: f64,
-) -> Vec<Landmark> {
-    let mut out = Vec::new();
-    for c in object_centroids {
-        let c = Vector3::new(c[0], c[1], c[2]);
-        let mut chosen = closest_per_frame(&c, sightings, GATE_M);
-        // Rays that disagree with the rest (a cluster that merged two objects, a shadow) are
-        // dropped one at a time, worst first, until every ray fits.
-        loop {
-            if chosen.len() < 2 {
-                break;
-            }
-            let Some(lm) = triangulate(&chosen, &c, focal_px) else {
-                break;
-            };
-            let worst = chosen
-                .iter()
-                .enumerate()
-                .map(|(k, (_, s))| (ray_chi2(s, &lm.position_m, &c, focal_px), k))
-                .max_by(|a, b| a.0.total_cmp(&b.0).then(b.1.cmp(&a.1)));
-            match worst {
-                Some((chi2, k)) if chi2 > MAX_RAY_CHI2 => {
-                    chosen.remove(k);
-                }
-                // A point the rays agree on but far from the object they were chosen for is
-                // two rays of different things crossing by chance.
-                _ if (lm.position_m - c).norm() > GATE_M => break,
-                _ => {
-                    out.push(lm);
-                    break;
-                }
-            }
-        }
-    }
-    out
-}
-
-/// How well the rays through the frames' detections meet, one point per object: for each
-/// object, the ray of each frame passing closest to it (within a gate) is kept, the kept rays
-/// are triangulated, and each frame with detections scores its ray's chi-square against the
-/// point (capped at [`MAX_RAY_CHI2`], which is also what a frame without a ray near the object
-/// scores).
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
-pub struct Consistency {
-    /// Objects triangulated.
-    pub objects: usize,
-    /// Frame-object pairs scored.
-    pub rays: usize,
-    /// Their mean capped chi-square (2 degrees of freedom).
-    pub mean_chi2: f64,
-}
-
-impl Consistency {
-    /// The consistency of `sightings` (several frames' rays) about the objects at `seeds`,
-    /// each ray within `gate_m` of a seed a candidate for it.
-    pub fn of(seeds: &[[f64; 3]], sightings: &[Sighting], focal_px: f64, gate_m: f64) -> Self {
-        let frames: Vec<usize> = {
-            let mut f: Vec<usize> = sightings.iter().map(|s| s.frame).collect();
-            f.dedup();
-            f
-        };
-        let (mut objects, mut rays, mut sum) = (0, 0, 0.0);
-        for c in seeds {
-            let c = Vector3::new(c[0], c[1], c[2]);
-            let chosen = closest_per_frame(&c, sightings, gate_m);
-            let Some(lm) = triangulate(&chosen, &c, focal_px) else {
-                continue;
-            };
-            objects += 1;
-            for f in &frames {
-                let chi2 = chosen
-                    .iter()
-                    .find(|(_, s)| s.frame == *f)
-                    .map_or(MAX_RAY_CHI2, |(_, s)| {
-                        ray_chi2(s, &lm.position_m, &c, focal_px).min(MAX_RAY_CHI2)
-                    });
-                rays += 1;
-                sum += chi2;
-            }
-        }
-        Consistency {
-            objects,
-            rays,
-            mean_chi2: if rays > 0 { sum / rays as f64 } else { 0.0 },
-        }
-    }
-
-    /// Whether these rays meet worse than `other`'s (by more than the rollback tolerance).
-    pub fn worse_than(&self, other: &Consistency) -> bool {
-        self.mean_chi2 > other.mean_chi2 * (1.0 + crate::fuse::replay::ROLLBACK_TOLERANCE) + 1e-9
-    }
-}
-
-/// Disagreement of one ray with a landmark at `p`: its sideways and up-down misses, in
-/// pixels at the range of `centre`, over their sigmas, squared and summed.
-fn ray_chi2(s: &Sighting, p: &Vector3<f64>, centre: &Vector3<f64>, focal_px: f64) -> f64 {
-    let Some((h, v)) = across_axes(&s.direction) else {
-        return f64::INFINITY;
-    };
-    let miss = p - s.origin_m;
-    let range = (centre - s.origin_m).norm().max(0.1);
-    let eh = h.dot(&miss) * focal_px / range / SIGMA_U_PX;
-    let ev = v.dot(&miss) * focal_px / range / SIGMA_V_PX;
-    eh * eh + ev * ev
-}
-
-/// Unit vectors across a ray: level (sideways) and the one completing them (up-down).
-fn across_axes(d: &Vector3<f64>) -> Option<(Vector3<f64>, Vector3<f64>)> {
-    let h = d.cross(&Vector3::z()).try_normalize(1e-9)?;
-    Some((h, d.cross(&h)))
-}
-
-/// The weighted least-squares point of `rays` and its covariance; `None` when they are too
-/// few or too close to parallel.
-fn triangulate(
-    rays: &[(f64, &Sighting)],
-    centre: &Vector3<f64>,
-    focal_px: f64,
-) -> Option<Landmark> {
-    let mut spread = Matrix3::zeros();
-    let mut info = Matrix3::zeros();
-    let mut b = Vector3::zeros();
-    for (_, s) in rays {
-        let d = s.direction;
-        spread += Matrix3::identity() - d * d.transpose();
-        let (h, v) = across_axes(&d)?;
-        let range = (centre - s.origin_m).norm().max(0.1);
-        let wh = (focal_px / (range * SIGMA_U_PX)).powi(2);
-        let wv = (focal_px / (range * SIGMA_V_PX)).powi(2);
-        let m = h * h.transpose() * wh + v * v.transpose() * wv;
-        info += m;
-        b += m * s.origin_m;
-    }
-    if rays.len() < 2 || SymmetricEigen::new(spread).eigenvalues.min() < MIN_RAY_SPREAD {
-        return None;
-    }
-    let cov = info.try_inverse()?;
-    Some(Landmark {
-        position_m: cov * b,
-        covariance_m2: cov,
-    })
-}
-
-fn project(camera: &Camera, camera_from_odom: &Iso3, p: &Vector3<f64>) -> Option<[f64; 2]> {
-    camera
-        .project(&(camera_from_odom * Point3::from(*p)))
-        .map(|(u, v)| [u, v])
-}
-
-/// Information (inverse covariance, 1/pixels^2) of where `lm` appears from `camera_from_odom`: its position's
-/// covariance pushed through the projection, plus the detection's own spread.
-fn image_covariance(
-    lm: &Landmark,
-    camera: &Camera,
-    camera_from_odom: &Iso3,
-) -> Option<Matrix2<f64>> {
-    let p = camera_from_odom * Point3::from(lm.position_m);
-    if p.z <= 1e-9 {
-        return None;
-    }
-    let r = camera_from_odom.rotation.to_rotation_matrix();
-    let dproj = Matrix2x3::new(
-        camera.fx / p.z,
-        0.0,
-        -camera.fx * p.x / (p.z * p.z),
-        0.0,
-        camera.fy / p.z,
-        -camera.fy * p.y / (p.z * p.z),
-    );
-    let j = dproj * r.matrix();
-    let s = j * lm.covariance_m2 * j.transpose()
-        + Matrix2::new(SIGMA_U_PX.powi(2), 0.0, 0.0, SIGMA_V_PX.powi(2));
-    s.try_inverse()
-}
-
-/// Pairs each landmark visible from `odom_from_camera` with the nearest cluster within
-/// [`GATE_PX`], closest pairs first, each cluster used once.
-fn associate(
-    landmarks: &[Landmark],
-    clusters: &[[f64; 2]],
-    camera: &Camera,
-    odom_from_camera: &Iso3,
-) -> Vec<(usize, usize)> {
-    let camera_from_odom = odom_from_camera.inverse();
-    let mut pairs = Vec::new();
-    for (i, l) in landmarks.iter().enumerate() {
-        let Some(p) = project(camera, &camera_from_odom, &l.position_m) else {
-            continue;
-        };
-        for (j, c) in clusters.iter().enumerate() {
-            let dist = (p[0] - c[0]).hypot(p[1] - c[1]);
-            if dist <= GATE_PX {
-                pairs.push((dist, i, j));
-            }
-        }
-    }
-    pairs.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)).then(a.2.cmp(&b.2)));
-    let mut used_l = vec![false; landmarks.len()];
-    let mut used_c = vec![false; clusters.len()];
-    let mut out = Vec::new();
-    for (_, i, j) in pairs {
-        if !used_l[i] && !used_c[j] {
-            used_l[i] = true;
-            used_c[j] = true;
-            out.push((i, j));
-        }
-    }
-    out
+/// What one frame's localisation needs.
+#[derive(Clone, Copy)]
+pub struct Localisation<'a> {
+    /// The objects seen before, placed where their rays met.
+    pub landmarks: &'a [Landmark],
+    /// The frame's detection clusters, pixels.
+    pub clusters: &'a [[f64; 2]],
+    /// The camera and its mount on the robot.
+    pub camera: &'a Camera,
+    pub base_from_camera: &'a Iso3,
+    /// The predicted robot pose (odom_from_base) and the motion model's covariance about it
+    /// (x, y, yaw).
+    pub predicted: &'a Iso3,
+    pub cov: &'a Matrix3<f64>,
+    /// The floor map and the frame's floor patch, when the floor term is used.
+    pub floor: Option<(&'a FloorMap, &'a FloorPatch)>,
+    /// The total correction's gate, when the frame has odometry to be held to.
+    pub gate: Option<&'a TotalGate>,
 }
 
 /// Finds the correction of `predicted` (odom_from_base) that best explains the frame's
@@ -658,17 +342,17 @@ fn associate(
 /// (x, y, yaw), and decides whether to apply it: only when it gains [`MIN_GAIN`], no
 /// separated candidate comes within [`AMBIGUITY_MARGIN`] of it, and the pose it gives passes
 /// the total `gate` (when given).
-#[allow(clippy::too_many_arguments)]
-pub fn refine(
-    landmarks: &[Landmark],
-    clusters: &[[f64; 2]],
-    camera: &Camera,
-    base_from_camera: &Iso3,
-    predicted: &Iso3,
-    cov: &Matrix3<f64>,
-    floor: Option<(&FloorMap, &FloorPatch)>,
-    gate: Option<&TotalGate>,
-) -> Correction {
+pub fn refine(q: &Localisation<'_>) -> Correction {
+    let Localisation {
+        landmarks,
+        clusters,
+        camera,
+        base_from_camera,
+        predicted,
+        cov,
+        floor,
+        gate,
+    } = *q;
     let Some(chol) = nalgebra::Cholesky::new(*cov) else {
         return Correction::ZERO;
     };
@@ -766,176 +450,11 @@ pub fn refine(
     }
 }
 
-/// The outcome of one search: the best candidate in whitened coordinates, its gain over no
-/// correction, and how far the best separated local maximum of the coarse round lies below
-/// the best.
-struct Found {
-    best_z: Vector3<f64>,
-    gain: f64,
-    runner_up_margin: f64,
-    /// Whitened distance from the best to that runner-up.
-    runner_up_distance: f64,
-}
-
-/// The coarse grid in whitened coordinates (+-[`SEARCH_SIGMAS`] in [`COARSE_STEPS`] per
-/// axis), then [`FINE_ROUNDS`] finer 3x3x3 grids about the best; `score(z, stride)` scores a
-/// candidate with the floor's every `stride`-th cell.
-fn search(score: impl Fn(&Vector3<f64>, usize) -> f64 + Sync) -> Found {
-    let base_score = score(&Vector3::zeros(), 1);
-    let mut best = (base_score, Vector3::zeros());
-    let mut runner_up_margin = f64::INFINITY;
-    let mut runner_up_distance = 0.0;
-    let half = COARSE_STEPS / 2;
-    let mut step = SEARCH_SIGMAS / f64::from(half);
-    let mut span = half;
-    for round in 0..=FINE_ROUNDS {
-        let stride = if round == 0 { COARSE_FLOOR_STRIDE } else { 1 };
-        let centre = best.1;
-        let offsets: Vec<Vector3<f64>> = (-span..=span)
-            .flat_map(|a| {
-                (-span..=span).flat_map(move |b| {
-                    (-span..=span)
-                        .map(move |c| Vector3::new(f64::from(a), f64::from(b), f64::from(c)))
-                })
-            })
-            .collect();
-        // Scored in parallel (each score is a pure function of its candidate), then chosen
-        // in candidate order: strictly better only, so the first of equal candidates wins
-        // and the choice does not depend on the thread count.
-        let scored: Vec<(f64, Vector3<f64>)> = offsets
-            .par_iter()
-            .map(|o| {
-                let z = centre + o * step;
-                (score(&z, stride), z)
-            })
-            .collect();
-        if round == 0 {
-            (runner_up_margin, runner_up_distance) =
-                separated_margin(&scored, COARSE_STEPS as usize);
-        }
-        // A strided round compares estimates with each other only; its winner is then
-        // scored in full, so that the fine rounds and the gain compare full scores.
-        let mut top = if stride > 1 {
-            (f64::NEG_INFINITY, centre)
-        } else {
-            best
-        };
-        for (s, z) in scored {
-            if s > top.0 {
-                top = (s, z);
-            }
-        }
-        best = if stride > 1 {
-            (score(&top.1, 1), top.1)
-        } else {
-            top
-        };
-        span = 1;
-        step /= 2.0;
-    }
-    Found {
-        best_z: best.1,
-        gain: best.0 - base_score,
-        runner_up_margin,
-        runner_up_distance,
-    }
-}
-
-/// A secondary peak of the coarse search counts as a separate mode only when the score dips
-/// by at least this many nats between it and any higher candidate (its prominence): ridges
-/// (an object alone leaves sliding around it to the prior) and slopes to the grid's edge have
-/// none, the periods of a repeating floor pattern do.
-pub const MIN_PROMINENCE: f64 = 1.0;
-
-/// ... and lies at least this far from the best, in standard deviations of the motion model
-/// (four steps of the coarse grid): nearer peaks are bumps of one mode (measured on the
-/// shipped, held-out-style and foreign tours: every such runner-up lay 1.7-2.8 sigmas from
-/// the best, and the best was the better pose in all but 4 of 38).
-pub const MIN_SEPARATION: f64 = 3.0;
-
-/// How far below the best of a cubic grid of `side`^3 scored candidates (in index order) the
-/// best other peak with [`MIN_PROMINENCE`] lies; infinite when there is none. Peaks and their
-/// prominences come from merging candidates in descending score order (ties by index) with
-/// their 26 neighbours: when two groups meet, the lower group's peak is as prominent as its
-/// height above the meeting candidate.
-fn separated_margin(scored: &[(f64, Vector3<f64>)], side: usize) -> (f64, f64) {
-    let n = side * side * side;
-    if scored.len() != n || n == 0 {
-        return (f64::INFINITY, 0.0);
-    }
-    let mut order: Vec<usize> = (0..n).collect();
-    order.sort_by(|&a, &b| scored[b].0.total_cmp(&scored[a].0).then(a.cmp(&b)));
-    // Union-find over placed candidates; each root remembers its group's peak.
-    let mut parent: Vec<usize> = (0..n).collect();
-    let mut placed = vec![false; n];
-    let peak: Vec<usize> = (0..n).collect();
-    fn root(parent: &mut [usize], mut i: usize) -> usize {
-        while parent[i] != i {
-            parent[i] = parent[parent[i]];
-            i = parent[i];
-        }
-        i
-    }
-    let top = scored[order[0]].0;
-    let mut runner_up = f64::NEG_INFINITY;
-    let mut runner_at = order[0];
-    for &i in &order {
-        placed[i] = true;
-        let (a, b, c) = (i / (side * side), (i / side) % side, i % side);
-        for da in -1i64..=1 {
-            for db in -1i64..=1 {
-                for dc in -1i64..=1 {
-                    let (x, y, z) = (a as i64 + da, b as i64 + db, c as i64 + dc);
-                    let side_i = side as i64;
-                    if (da, db, dc) == (0, 0, 0)
-                        || !(0..side_i).contains(&x)
-                        || !(0..side_i).contains(&y)
-                        || !(0..side_i).contains(&z)
-                    {
-                        continue;
-                    }
-                    let j = (x as usize * side + y as usize) * side + z as usize;
-                    if !placed[j] {
-                        continue;
-                    }
-                    let (ri, rj) = (root(&mut parent, i), root(&mut parent, j));
-                    if ri == rj {
-                        continue;
-                    }
-                    // The lower peak's group joins the higher; the lower peak's prominence is
-                    // its height above this candidate, the lowest on the way between them.
-                    let (pi, pj) = (peak[ri], peak[rj]);
-                    let higher_first = |p: usize, q: usize| {
-                        scored[p].0 > scored[q].0 || (scored[p].0 == scored[q].0 && p < q)
-                    };
-                    let (hi_root, lo_root) = if higher_first(pi, pj) {
-                        (ri, rj)
-                    } else {
-                        (rj, ri)
-                    };
-                    let lo_peak = peak[lo_root];
-                    let far = (scored[lo_peak].1 - scored[order[0]].1).norm() >= MIN_SEPARATION;
-                    if far
-                        && scored[lo_peak].0 - scored[i].0 >= MIN_PROMINENCE
-                        && scored[lo_peak].0 > runner_up
-                    {
-                        runner_up = scored[lo_peak].0;
-                        runner_at = lo_peak;
-                    }
-                    parent[lo_root] = hi_root;
-                }
-            }
-        }
-    }
-    (
-        top - runner_up,
-        (scored[runner_at].1 - scored[order[0]].1).norm(),
-    )
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::fuse::grid::TileEvidence;
+    use nalgebra::Point3;
     use crate::types::geometry::{camera_mount, iso_from_xy_yaw};
 
     fn seg(start_s: f64, end_s: f64, v: f64, w: f64) -> Segment {
@@ -1061,7 +580,16 @@ mod tests {
         let (u, v) = cam
             .project(&((truth * mount).inverse() * Point3::from(target)))
             .unwrap();
-        let c = refine(&[lm], &[[u, v]], &cam, &mount, &predicted, &cov, None, None);
+        let c = refine(&Localisation {
+            landmarks: &[lm],
+            clusters: &[[u, v]],
+            camera: &cam,
+            base_from_camera: &mount,
+            predicted: &predicted,
+            cov: &cov,
+            floor: None,
+            gate: None,
+        });
         (c, truth)
     }
 
@@ -1096,32 +624,32 @@ mod tests {
     fn nothing_to_align_to_means_no_correction() {
         let cam = Camera::with_hfov(64, 48, 1.0);
         let cov = motion_covariance(&[], 0.1, 0.1);
-        let c = refine(
-            &[],
-            &[[30.0, 20.0]],
-            &cam,
-            &Iso3::identity(),
-            &Iso3::identity(),
-            &cov,
-            None,
-            None,
-        );
+        let c = refine(&Localisation {
+            landmarks: &[],
+            clusters: &[[30.0, 20.0]],
+            camera: &cam,
+            base_from_camera: &Iso3::identity(),
+            predicted: &Iso3::identity(),
+            cov: &cov,
+            floor: None,
+            gate: None,
+        });
         assert_eq!(c, Correction::ZERO);
         let lm = Landmark {
             position_m: Vector3::new(0.0, 0.0, 2.0),
             covariance_m2: Matrix3::zeros(),
         };
         // A landmark but no detection near it.
-        let c = refine(
-            &[lm],
-            &[],
-            &cam,
-            &Iso3::identity(),
-            &Iso3::identity(),
-            &cov,
-            None,
-            None,
-        );
+        let c = refine(&Localisation {
+            landmarks: &[lm],
+            clusters: &[],
+            camera: &cam,
+            base_from_camera: &Iso3::identity(),
+            predicted: &Iso3::identity(),
+            cov: &cov,
+            floor: None,
+            gate: None,
+        });
         assert_eq!(c, Correction::ZERO);
     }
 

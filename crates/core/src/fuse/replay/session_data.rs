@@ -1,0 +1,246 @@
+//! Pass 1 of the replay: everything of a session but the pixels, read and validated.
+
+use crate::io::msgs::GroundTruth;
+use crate::io::msgs::iso_from_pose;
+use crate::io::session::{At, Role, SessionMsg, SessionReader, TimedMsg};
+use crate::types::geometry::{Camera, Iso3, iso_from_parts};
+use crate::types::track::PoseTrack;
+
+use super::*;
+
+/// Margin around the camera positions for the default bounds, metres.
+pub const DEFAULT_BOUNDS_MARGIN_M: f64 = 0.25;
+/// Smallest side of the default bounds in x and y, metres (the paper's 4 m grid).
+pub const DEFAULT_MIN_SIDE_M: f64 = 4.0;
+
+/// One camera frame of the session, before its pixels are decoded.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FrameRef {
+    /// Index into the reader's raw messages.
+    pub raw_index: usize,
+    pub topic: String,
+    pub log_time_ns: u64,
+    pub stamp_ns: i64,
+}
+
+/// Everything of a session but the pixels, validated.
+#[derive(Debug, Clone)]
+pub struct SessionData {
+    pub path: String,
+    pub camera: Camera,
+    pub camera_frame_id: String,
+    /// base_link -> camera optical frame, from /tf_static.
+    pub base_from_camera: Iso3,
+    /// (stamp, odom_from_base), sorted by stamp.
+    pub odom: PoseTrack,
+    /// (stamp, v m/s, w rad/s), sorted by stamp.
+    pub commands: Vec<(i64, f64, f64)>,
+    pub frames: Vec<FrameRef>,
+    pub ground_truth_poses: PoseTrack,
+    pub ground_truth: Option<GroundTruth>,
+    pub warnings: Vec<String>,
+}
+
+impl SessionData {
+    /// Pose of base_link in odom at `stamp_ns`, interpolated; `None` when the odometry does
+    /// not reach within [`crate::types::track::POSE_TOLERANCE_NS`] of it.
+    pub fn odom_at(&self, stamp_ns: i64) -> Option<Iso3> {
+        self.odom.at(stamp_ns)
+    }
+
+    /// Pose of base_link from /ground_truth/pose at `stamp_ns`, as [`SessionData::odom_at`].
+    pub fn ground_truth_at(&self, stamp_ns: i64) -> Option<Iso3> {
+        self.ground_truth_poses.at(stamp_ns)
+    }
+
+    /// Default grid bounds: the box around every camera position, padded by
+    /// [`DEFAULT_BOUNDS_MARGIN_M`] and widened to at least [`DEFAULT_MIN_SIDE_M`] in x and y;
+    /// z from the floor (0) to 0.5 m above the highest camera. A robot that looks at an object
+    /// from several sides (the method's premise) has the object inside this box.
+    pub fn default_bounds(&self) -> Option<([f64; 3], [f64; 3])> {
+        let mut lo = [f64::INFINITY; 3];
+        let mut hi = [f64::NEG_INFINITY; 3];
+        for f in &self.frames {
+            if let Some(p) = self.odom_at(f.stamp_ns) {
+                let c = (p * self.base_from_camera).translation.vector;
+                for a in 0..3 {
+                    lo[a] = lo[a].min(c[a]);
+                    hi[a] = hi[a].max(c[a]);
+                }
+            }
+        }
+        if !lo[0].is_finite() {
+            return None;
+        }
+        for a in 0..2 {
+            lo[a] -= DEFAULT_BOUNDS_MARGIN_M;
+            hi[a] += DEFAULT_BOUNDS_MARGIN_M;
+            let side = hi[a] - lo[a];
+            if side < DEFAULT_MIN_SIDE_M {
+                let grow = (DEFAULT_MIN_SIDE_M - side) / 2.0;
+                lo[a] -= grow;
+                hi[a] += grow;
+            }
+        }
+        let top = hi[2] + 0.5;
+        Some(([lo[0], lo[1], 0.0], [hi[0], hi[1], top]))
+    }
+}
+
+/// What pass 1 collects, message by message.
+#[derive(Default)]
+struct Collected {
+    warnings: Vec<String>,
+    camera: Option<(Camera, String)>,
+    /// (parent, child, parent_from_child) from /tf_static.
+    transforms: Vec<(String, String, Iso3)>,
+    odom: Vec<(i64, Iso3)>,
+    commands: Vec<(i64, f64, f64)>,
+    frames: Vec<FrameRef>,
+    gt_poses: Vec<(i64, Iso3)>,
+    ground_truth: Option<GroundTruth>,
+}
+
+impl Collected {
+    /// Takes one decoded message (the `raw_index`-th of the reader's).
+    fn take(&mut self, m: TimedMsg, raw_index: usize, at: At) -> Result<(), ReplayError> {
+        match m.msg {
+            SessionMsg::CameraInfo(ci) => {
+                let cam = Camera::from_info(&ci).ok_or_else(|| ReplayError::Invalid {
+                    at: at.clone(),
+                    what: format!(
+                        "CameraInfo is not a usable pinhole camera (width {}, height {}, K {:?})",
+                        ci.width, ci.height, ci.k
+                    ),
+                })?;
+                match &self.camera {
+                    None => self.camera = Some((cam, ci.header.frame_id.clone())),
+                    Some((c, _)) if *c != cam => {
+                        return Err(ReplayError::Invalid {
+                            at,
+                            what: "CameraInfo changes during the session; objloc fuses one camera"
+                                .into(),
+                        });
+                    }
+                    Some(_) => {}
+                }
+            }
+            SessionMsg::TfStatic(tf) => {
+                for t in tf.transforms {
+                    let iso = iso_from_parts(t.translation, t.rotation_xyzw).ok_or_else(|| {
+                        ReplayError::Invalid {
+                            at: at.clone(),
+                            what: format!(
+                                "transform {} -> {} is not finite or has a zero quaternion",
+                                t.header.frame_id, t.child_frame_id
+                            ),
+                        }
+                    })?;
+                    self.transforms
+                        .push((t.header.frame_id, t.child_frame_id, iso));
+                }
+            }
+            SessionMsg::Odom(o) => match iso_from_pose(&o.pose) {
+                Some(p) => self.odom.push((o.header.stamp_ns, p)),
+                None => self.warnings.push(format!(
+                    "{at}: pose is not finite or has a zero quaternion; message skipped"
+                )),
+            },
+            SessionMsg::CmdVel(c) => {
+                let (v, w) = (c.twist.linear[0], c.twist.angular[2]);
+                if v.is_finite() && w.is_finite() {
+                    self.commands.push((c.header.stamp_ns, v, w));
+                } else {
+                    self.warnings
+                        .push(format!("{at}: twist is not finite; command skipped"));
+                }
+            }
+            SessionMsg::Frame(f) => self.frames.push(FrameRef {
+                raw_index,
+                topic: m.topic.clone(),
+                log_time_ns: m.log_time_ns,
+                stamp_ns: f.stamp_ns,
+            }),
+            SessionMsg::GroundTruthPose(p) => {
+                if let Some(iso) = iso_from_pose(&p.pose) {
+                    self.gt_poses.push((p.header.stamp_ns, iso));
+                }
+            }
+            SessionMsg::GroundTruthObjects(g) => self.ground_truth = Some(g),
+            SessionMsg::Label(_) => {}
+        }
+        Ok(())
+    }
+
+    /// The camera mount: the transform to the camera's frame; a bag with a single static
+    /// transform is taken to mean that one.
+    fn mount(&self, reader: &SessionReader, camera_frame_id: &str) -> Result<Iso3, ReplayError> {
+        let t = &self.transforms;
+        t.iter()
+            .find(|(_, child, _)| child == camera_frame_id)
+            .or_else(|| (t.len() == 1).then(|| &t[0]))
+            .map(|(_, _, iso)| *iso)
+            .ok_or_else(|| ReplayError::Invalid {
+                at: At {
+                    path: reader.path().to_owned(),
+                    topic: Some(reader.topics().tf_static.clone()),
+                    log_time_ns: None,
+                },
+                what: format!(
+                    "no transform to the camera frame {camera_frame_id:?} (have: {})",
+                    t.iter()
+                        .map(|(p, c, _)| format!("{p} -> {c}"))
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ),
+            })
+    }
+}
+
+/// Pass 1: reads and validates everything but pixels.
+pub fn load_session(reader: &SessionReader) -> Result<SessionData, ReplayError> {
+    reader.require(Role::CameraInfo)?;
+    reader.require(Role::TfStatic)?;
+    reader.require(Role::Odom)?;
+    reader.require_frames()?;
+    let path = reader.path().display().to_string();
+    let mut c = Collected {
+        warnings: reader.warnings.clone(),
+        ..Collected::default()
+    };
+    for (raw_index, raw) in reader.raw_messages().iter().enumerate() {
+        let Some(m) = reader.decode(raw)? else {
+            continue;
+        };
+        let at = reader.at(Some(&m.topic), m.log_time_ns);
+        c.take(m, raw_index, at)?;
+    }
+    let (camera, camera_frame_id) = c.camera.clone().ok_or_else(|| ReplayError::Invalid {
+        at: At {
+            path: reader.path().to_owned(),
+            topic: Some(reader.topics().camera_info.clone()),
+            log_time_ns: None,
+        },
+        what: "no CameraInfo".into(),
+    })?;
+    let base_from_camera = c.mount(reader, &camera_frame_id)?;
+    if c.odom.windows(2).any(|w| w[1].0 < w[0].0) {
+        c.warnings.push(format!(
+            "{path}: {} stamps go backwards; poses sorted by stamp",
+            reader.topics().odom
+        ));
+    }
+    c.commands.sort_by_key(|(t, _, _)| *t);
+    Ok(SessionData {
+        path,
+        camera,
+        camera_frame_id,
+        base_from_camera,
+        odom: PoseTrack::new(c.odom),
+        commands: c.commands,
+        frames: c.frames,
+        ground_truth_poses: PoseTrack::new(c.gt_poses),
+        ground_truth: c.ground_truth,
+        warnings: c.warnings,
+    })
+}
