@@ -188,7 +188,7 @@ pub fn fuse(
     let t_load = t0.elapsed();
     let options = args.options();
     let t1 = Instant::now();
-    let id = viz::recording_id(
+    let id = objloc_core::out::view::recording_id(
         "fuse",
         &[
             &session_sha256,

@@ -45,7 +45,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     pred.write(&args.out, &session, args.heatmaps)
         .context("predict: writing outputs")?;
     // The frames with their labels and maps, in Rerun (by default beside the outputs).
-    let id = crate::viz::recording_id(
+    let id = objloc_core::out::view::recording_id(
         "predict",
         &[&session.sha256, &serde_json::to_string(&model)?],
     );

@@ -171,7 +171,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     // The tree as a graph and the training frames with their maps, in Rerun (by default
     // beside the model).
     let hashes: Vec<&str> = sessions.iter().map(|s| s.sha256.as_str()).collect();
-    let id = crate::viz::recording_id(
+    let id = objloc_core::out::view::recording_id(
         "train",
         &[&hashes.join(","), &serde_json::to_string(&model)?],
     );

@@ -7,19 +7,19 @@
 //! with the frame's MCAP log time and on `frame` with its index; session-wide things (camera
 //! mount, intrinsics, ground-truth boxes) are static. Observing never changes the replay.
 
-use nalgebra::Point3;
 use rerun::RecordingStream;
 
-use super::{TIMELINE_FRAME, TIMELINE_LOG_TIME, VizError, log_err, viridis};
-use objloc_core::fuse::grid::{Grid, sigmoid};
-use objloc_core::fuse::objects::Object;
+use super::{TIMELINE_FRAME, TIMELINE_LOG_TIME, VizError, log_err};
+use objloc_core::fuse::grid::Grid;
 use objloc_core::fuse::refine::Verdict;
 use objloc_core::fuse::replay::{FrameStep, Observer, SessionData};
-use objloc_core::types::probs::TileProbs;
-use objloc_core::types::image::Rgb8;
-use objloc_core::types::geometry::{Camera, Iso3, yaw_of};
 use objloc_core::io::msgs::iso_from_pose;
-use rayon::prelude::*;
+use objloc_core::out::view::{
+    centroid_error_m, overlay_rgba, pyramids, summarize_grid, upscale, verdict_rgb, viridis,
+};
+use objloc_core::types::geometry::{Iso3, yaw_of};
+use objloc_core::types::image::Rgb8;
+use objloc_core::types::probs::TileProbs;
 
 /// What the fuse stream shows.
 #[derive(Debug, Clone, PartialEq)]
@@ -61,20 +61,6 @@ const WORLD_FRAME: &str = "tf#/world";
 /// One line per refined frame: the verdict and its numbers; the rollback, when it happens.
 const VERDICT_LOG: &str = "refinement";
 
-/// Colour of a frame's refinement verdict on the refined track: green when the pose was
-/// measured, grey without evidence, yellow/orange when the correction was refused, red when
-/// rolled back (visible at a glance).
-pub fn verdict_rgb(v: Verdict) -> [u8; 3] {
-    match v {
-        Verdict::Accepted => [60, 200, 90],
-        Verdict::Insignificant => [150, 220, 160],
-        Verdict::NoEvidence => [150, 150, 150],
-        Verdict::Ambiguous => [240, 220, 40],
-        Verdict::Gated => [255, 150, 30],
-        Verdict::RolledBack => [230, 30, 30],
-    }
-}
-
 /// Streams a replay to a recording.
 pub struct FuseViz {
     rec: RecordingStream,
@@ -98,144 +84,6 @@ impl FuseViz {
             first_position: None,
         }
     }
-}
-
-/// Whole-grid numbers and the cells worth showing, in one pass over the grid.
-#[derive(Debug, Clone, PartialEq)]
-pub struct GridSummary {
-    pub max_posterior: f64,
-    /// Mean binary entropy of a cell, bits.
-    pub mean_entropy_bits: f64,
-    /// (i, j, k) and posterior of the shown cells, in index order.
-    pub cells: Vec<([i32; 3], f32)>,
-    /// Mean posterior along x: ny x nz, row-major as an image with z up (row 0 = top z).
-    pub along_x: Vec<f32>,
-    /// Mean posterior along y: nx wide, nz high, z up.
-    pub along_y: Vec<f32>,
-    /// Mean posterior along z: nx wide, ny high, y up.
-    pub along_z: Vec<f32>,
-}
-
-fn binary_entropy_bits(p: f64) -> f64 {
-    let h = |q: f64| if q > 0.0 { -q * q.log2() } else { 0.0 };
-    h(p) + h(1.0 - p)
-}
-
-pub fn summarize_grid(grid: &Grid, min_posterior: f32, min_views: u16) -> GridSummary {
-    let [nx, ny, nz] = grid.spec.dims;
-    let mut along_x = vec![0f64; ny * nz];
-    let mut along_y = vec![0f64; nx * nz];
-    let mut along_z = vec![0f64; nx * ny];
-    let mut cells = Vec::new();
-    let mut max_l = f32::NEG_INFINITY;
-    let mut entropy = 0.0;
-    // The transcendental part in parallel, per cell; the sums below stay sequential in index
-    // order, so the result does not depend on the thread count.
-    // Most cells hold one of few values (the prior, outside every view, comes in long runs
-    // along a column), so each column remembers its last value: a pure function of the cell's
-    // log-odds either way.
-    let mut p_h: Vec<(f64, f64)> = vec![(0.0, 0.0); grid.log_odds.len()];
-    p_h.par_chunks_mut(nz.max(1))
-        .zip(grid.log_odds.par_chunks(nz.max(1)))
-        .for_each(|(out, col)| {
-            let mut last: Option<(u32, (f64, f64))> = None;
-            for (o, &l) in out.iter_mut().zip(col) {
-                *o = match last {
-                    Some((bits, v)) if bits == l.to_bits() => v,
-                    _ => {
-                        let p = sigmoid(f64::from(l));
-                        let v = (p, binary_entropy_bits(p));
-                        last = Some((l.to_bits(), v));
-                        v
-                    }
-                };
-            }
-        });
-    for i in 0..nx {
-        for j in 0..ny {
-            for k in 0..nz {
-                let idx = grid.spec.index(i, j, k);
-                max_l = max_l.max(grid.log_odds[idx]);
-                let (p, h) = p_h[idx];
-                entropy += h;
-                let (rz, ry) = (nz - 1 - k, ny - 1 - j);
-                along_x[rz * ny + j] += p;
-                along_y[rz * nx + i] += p;
-                along_z[ry * nx + i] += p;
-                if p as f32 > min_posterior && grid.views[idx] >= min_views {
-                    cells.push(([i as i32, j as i32, k as i32], p as f32));
-                }
-            }
-        }
-    }
-    let n = grid.spec.cells().max(1) as f64;
-    let mean = |v: Vec<f64>, d: usize| v.into_iter().map(|s| (s / d as f64) as f32).collect();
-    GridSummary {
-        max_posterior: sigmoid(f64::from(max_l)),
-        mean_entropy_bits: entropy / n,
-        cells,
-        along_x: mean(along_x, nx),
-        along_y: mean(along_y, ny),
-        along_z: mean(along_z, nz),
-    }
-}
-
-/// Tile probabilities as one f32 per image pixel (0 outside whole tiles: "no value").
-pub fn upscale(probs: &TileProbs, width: u32, height: u32) -> Vec<f32> {
-    let t = probs.tile_px.max(1) as usize;
-    let mut out = vec![0f32; width as usize * height as usize];
-    for y in 0..height as usize {
-        let r = y / t;
-        if r >= probs.rows {
-            break;
-        }
-        for x in 0..(width as usize).min(probs.cols * t) {
-            out[y * width as usize + x] = probs.p[r * probs.cols + x / t];
-        }
-    }
-    out
-}
-
-/// Line strips of the pyramids of tiles with p > `min_p`: four edges from the eye and the far
-/// rectangle at `depth_m` along the optical axis, in odom, with each tile's probability.
-pub fn pyramids(
-    camera: &Camera,
-    odom_from_camera: &Iso3,
-    probs: &TileProbs,
-    min_p: f32,
-    depth_m: f64,
-) -> Vec<(Vec<[f32; 3]>, f32)> {
-    let eye = odom_from_camera.translation.vector;
-    let eye = [eye.x as f32, eye.y as f32, eye.z as f32];
-    let t = f64::from(probs.tile_px);
-    let far = |u: f64, v: f64| {
-        let r = camera.ray(u, v);
-        let p = odom_from_camera * Point3::from(r * (depth_m / r.z));
-        [p.x as f32, p.y as f32, p.z as f32]
-    };
-    let mut out = Vec::new();
-    for r in 0..probs.rows {
-        for c in 0..probs.cols {
-            let p = probs.p[r * probs.cols + c];
-            if p.is_nan() || p <= min_p {
-                continue;
-            }
-            let (u0, v0) = (c as f64 * t, r as f64 * t);
-            let corners = [
-                far(u0, v0),
-                far(u0 + t, v0),
-                far(u0 + t, v0 + t),
-                far(u0, v0 + t),
-            ];
-            for k in corners {
-                out.push((vec![eye, k], p));
-            }
-            let mut rect = corners.to_vec();
-            rect.push(corners[0]);
-            out.push((rect, p));
-        }
-    }
-    out
 }
 
 fn translation_rotation(iso: &Iso3) -> ([f32; 3], rerun::Quaternion) {
@@ -297,42 +145,12 @@ fn truth_boxes(data: &SessionData) -> Option<rerun::Boxes3D> {
     )
 }
 
-/// Distance from the first (most massive) object's centroid to the nearest true box centre.
-pub fn centroid_error_m(objects: &[Object], data: &SessionData) -> Option<f64> {
-    let o = objects.first()?;
-    let gt = data.ground_truth.as_ref()?;
-    gt.box_center
-        .iter()
-        .map(|c| {
-            let d: f64 = (0..3)
-                .map(|a| (o.centroid_m[a] - c.position[a]).powi(2))
-                .sum();
-            d.sqrt()
-        })
-        .min_by(f64::total_cmp)
-}
-
 pub(crate) fn depth_image(p: Vec<f32>, width: u32, height: u32) -> rerun::DepthImage {
     let bytes: Vec<u8> = p.iter().flat_map(|v| v.to_le_bytes()).collect();
     rerun::DepthImage::from_data_type_and_bytes(bytes, [width, height], rerun::ChannelDatatype::F32)
         .with_meter(1.0)
         .with_colormap(rerun::components::Colormap::Viridis)
         .with_depth_range([0.0, 1.0])
-}
-
-/// Viridis RGBA overlay: alpha grows with p so that confident tiles tint the frame.
-pub fn overlay_rgba(p: &[f32]) -> Vec<u8> {
-    let mut out = Vec::with_capacity(p.len() * 4);
-    for &v in p {
-        let [r, g, b] = viridis(v);
-        let a = if v > 0.0 {
-            (40.0 + 180.0 * v.clamp(0.0, 1.0)).round() as u8
-        } else {
-            0
-        };
-        out.extend_from_slice(&[r, g, b, a]);
-    }
-    out
 }
 
 /// Logs a frame, its tile probabilities (hoverable f32) and a viridis overlay under `base`.
@@ -651,111 +469,5 @@ impl Observer for FuseViz {
             )
             .map_err(log_err)?;
         Ok(())
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use objloc_core::fuse::grid::{GridSpec, logit};
-    use objloc_core::types::geometry::iso_from_xy_yaw;
-
-    #[test]
-    fn upscale_repeats_tiles_and_leaves_partial_edges_empty() {
-        let probs = TileProbs {
-            rows: 1,
-            cols: 2,
-            tile_px: 2,
-            p: vec![0.25, 0.75],
-        };
-        // 5 x 3 image: tiles cover x 0..4, y 0..2; column 4 and row 2 stay 0.
-        let up = upscale(&probs, 5, 3);
-        assert_eq!(
-            up,
-            vec![
-                0.25, 0.25, 0.75, 0.75, 0.0, 0.25, 0.25, 0.75, 0.75, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
-            ]
-        );
-    }
-
-    #[test]
-    fn pyramid_of_the_centre_tile_reaches_the_depth_along_the_axis() {
-        // 4 x 4 image, fx = fy = 2, centre (2, 2): the tile (1, 1) of 2 px spans u, v in [2, 4],
-        // so its far corners at depth 3 are x, y in {0, 3} (x = (u - 2) / 2 * 3).
-        let camera = Camera {
-            width: 4,
-            height: 4,
-            fx: 2.0,
-            fy: 2.0,
-            cx: 2.0,
-            cy: 2.0,
-        };
-        let probs = TileProbs {
-            rows: 2,
-            cols: 2,
-            tile_px: 2,
-            p: vec![0.1, 0.2, 0.3, 0.9],
-        };
-        let s = pyramids(&camera, &Iso3::identity(), &probs, 0.5, 3.0);
-        assert_eq!(
-            s.len(),
-            5,
-            "one tile above 0.5: 4 edges + the far rectangle"
-        );
-        assert_eq!(s[0].0, vec![[0.0, 0.0, 0.0], [0.0, 0.0, 3.0]]);
-        assert_eq!(s[2].0[1], [3.0, 3.0, 3.0]);
-        assert_eq!(s[4].0.len(), 5);
-        assert_eq!(s[4].0[0], s[4].0[4]);
-        assert!(s.iter().all(|(_, p)| *p == 0.9));
-        // Moved 1 m along x in odom: every point moves with it.
-        let moved = pyramids(&camera, &iso_from_xy_yaw(1.0, 0.0, 0.0), &probs, 0.5, 3.0);
-        assert_eq!(moved[2].0[1], [4.0, 3.0, 3.0]);
-    }
-
-    #[test]
-    fn grid_summary_projections_entropy_and_shown_cells() {
-        let spec = GridSpec {
-            origin_m: [0.0; 3],
-            voxel_size_m: 1.0,
-            dims: [2, 1, 2],
-        };
-        let mut grid = Grid::new(spec, 0.5).unwrap();
-        // Cell (1, 0, 1) at p = 0.8 seen twice; cell (0, 0, 0) at p = 0.8 seen once.
-        let hi = logit(0.8) as f32;
-        let a = spec.index(1, 0, 1);
-        let b = spec.index(0, 0, 0);
-        grid.log_odds[a] = hi;
-        grid.views[a] = 2;
-        grid.log_odds[b] = hi;
-        grid.views[b] = 1;
-        let s = summarize_grid(&grid, 0.5, 2);
-        assert_eq!(s.cells, vec![([1, 0, 1], 0.8)]);
-        assert!((s.max_posterior - 0.8).abs() < 1e-6);
-        // H(0.8) = 0.7219 bits, H(0.5) = 1: mean over 4 cells (2 * 0.7219 + 2) / 4.
-        assert!(
-            (s.mean_entropy_bits - 0.860_964).abs() < 1e-5,
-            "{}",
-            s.mean_entropy_bits
-        );
-        // Along z (x wide, y high): x = 0 -> (0.8 + 0.5) / 2, x = 1 -> (0.5 + 0.8) / 2.
-        assert!(s.along_z.iter().all(|v| (v - 0.65).abs() < 1e-6));
-        // Along y (x wide, z up): top row is k = 1: [0.5, 0.8]; bottom k = 0: [0.8, 0.5].
-        let want = [0.5, 0.8, 0.8, 0.5];
-        assert!(
-            s.along_y
-                .iter()
-                .zip(want)
-                .all(|(v, w)| (v - w).abs() < 1e-6),
-            "{:?}",
-            s.along_y
-        );
-        // Along x (y wide = 1, z up): k = 1 -> (0.5 + 0.8) / 2, k = 0 -> (0.8 + 0.5) / 2.
-        assert!(s.along_x.iter().all(|v| (v - 0.65).abs() < 1e-6));
-    }
-
-    #[test]
-    fn overlay_alpha_grows_with_p_and_empty_pixels_are_clear() {
-        let o = overlay_rgba(&[0.0, 1.0]);
-        assert_eq!(o, vec![68, 1, 84, 0, 253, 231, 37, 220]);
     }
 }

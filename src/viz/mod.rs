@@ -15,11 +15,10 @@ pub mod train;
 use std::path::{Path, PathBuf};
 
 use rerun::{RecordingStream, RecordingStreamBuilder};
-use sha2::{Digest, Sha256};
 use thiserror::Error;
 
 /// The Rerun application id of every objloc recording.
-pub const APP_ID: &str = "objloc";
+use objloc_core::out::view::APP_ID;
 
 /// Timeline of MCAP log times (a timestamp, ns since the epoch of the session's clock).
 pub const TIMELINE_LOG_TIME: &str = "log_time";
@@ -74,15 +73,6 @@ pub enum Target {
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct VizArgs {
     pub target: Target,
-}
-
-impl VizArgs {
-    /// As if no Rerun flag had been given (for library callers and tests).
-    pub fn headless() -> Self {
-        Self {
-            target: Target::Default,
-        }
-    }
 }
 
 fn target_from_matches(m: &clap::ArgMatches) -> Target {
@@ -169,20 +159,6 @@ impl clap::Args for VizArgs {
     }
 }
 
-/// A recording id from the inputs that determine the recording's content: `kind` names the
-/// command, `parts` are e.g. the session and model SHA-256 and the options as JSON.
-pub fn recording_id(kind: &str, parts: &[&str]) -> String {
-    let mut h = Sha256::new();
-    h.update(kind.as_bytes());
-    for p in parts {
-        // Length-prefixed so that ("ab", "c") and ("a", "bc") differ.
-        h.update((p.len() as u64).to_le_bytes());
-        h.update(p.as_bytes());
-    }
-    let hex = objloc_core::types::digest::hex(&h.finalize()[..16]);
-    format!("{APP_ID}-{kind}-{hex}")
-}
-
 /// An open recording (disabled under `--no-rerun`: see [`VizStream::is_on`]); call
 /// [`VizStream::finish`] at the end.
 pub struct VizStream {
@@ -199,12 +175,6 @@ impl std::fmt::Debug for VizStream {
             .field("file", &self.file)
             .finish()
     }
-}
-
-fn partial_path(path: &Path) -> PathBuf {
-    let mut s = path.as_os_str().to_owned();
-    s.push(".partial");
-    PathBuf::from(s)
 }
 
 /// Every `log` call becomes its own chunk, sent in program order. The default batcher cuts
@@ -250,7 +220,7 @@ pub fn open_stream(
                     what: e.to_string(),
                 })?;
             }
-            let partial = partial_path(&path);
+            let partial = objloc_core::io::output::partial_path(&path);
             let rec = builder.save(&partial).map_err(|e| VizError::Create {
                 path: partial.display().to_string(),
                 what: e.to_string(),
@@ -354,29 +324,6 @@ pub(crate) fn log_err(e: impl std::fmt::Display) -> VizError {
     VizError::Log(e.to_string())
 }
 
-/// Viridis (perceptually uniform), sampled at 9 points and interpolated linearly.
-const VIRIDIS: [[f32; 3]; 9] = [
-    [68.0, 1.0, 84.0],
-    [71.0, 44.0, 122.0],
-    [59.0, 81.0, 139.0],
-    [44.0, 113.0, 142.0],
-    [33.0, 144.0, 141.0],
-    [39.0, 173.0, 129.0],
-    [92.0, 200.0, 99.0],
-    [170.0, 220.0, 50.0],
-    [253.0, 231.0, 37.0],
-];
-
-/// Viridis colour of `t` in [0, 1] (clamped; NaN maps to 0).
-pub fn viridis(t: f32) -> [u8; 3] {
-    let t = if t.is_nan() { 0.0 } else { t.clamp(0.0, 1.0) };
-    let x = t * (VIRIDIS.len() - 1) as f32;
-    let i = (x.floor() as usize).min(VIRIDIS.len() - 2);
-    let f = x - i as f32;
-    let (a, b) = (VIRIDIS[i], VIRIDIS[i + 1]);
-    [0, 1, 2].map(|c| (a[c] + (b[c] - a[c]) * f).round() as u8)
-}
-
 /// The default layout of a fuse recording: the 3D world and the camera (frame with the
 /// probability overlay) side by side, the three projections and the plots below.
 pub fn fuse_blueprint() -> rerun::blueprint::Blueprint {
@@ -445,95 +392,4 @@ pub fn train_blueprint() -> rerun::blueprint::Blueprint {
         .into(),
     ]))
     .with_auto_views(false)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn viridis_ends_and_middle() {
-        assert_eq!(viridis(0.0), [68, 1, 84]);
-        assert_eq!(viridis(1.0), [253, 231, 37]);
-        assert_eq!(viridis(0.5), [33, 144, 141]);
-        // Halfway between samples 0 and 1: (68+71)/2 = 69.5 -> 70, (1+44)/2 = 22.5 -> 23.
-        assert_eq!(viridis(0.0625), [70, 23, 103]);
-        assert_eq!(viridis(-3.0), viridis(0.0));
-        assert_eq!(viridis(f32::NAN), viridis(0.0));
-    }
-
-    #[test]
-    fn recording_id_depends_on_every_part() {
-        let a = recording_id("fuse", &["ab", "c"]);
-        assert_eq!(a, recording_id("fuse", &["ab", "c"]));
-        assert_ne!(a, recording_id("fuse", &["a", "bc"]));
-        assert_ne!(a, recording_id("train", &["ab", "c"]));
-        assert!(a.starts_with("objloc-fuse-"));
-        assert_eq!(a.len(), "objloc-fuse-".len() + 32);
-    }
-
-    #[derive(Debug, clap::Parser)]
-    struct Cli {
-        #[command(flatten)]
-        viz: VizArgs,
-    }
-
-    fn target(args: &[&str]) -> Target {
-        use clap::Parser as _;
-        let mut v = vec!["objloc"];
-        v.extend_from_slice(args);
-        Cli::try_parse_from(v)
-            .map(|c| c.viz.target)
-            .unwrap_or_else(|e| panic!("{e}"))
-    }
-
-    #[test]
-    fn flags_pick_the_target() {
-        assert_eq!(target(&[]), Target::Default);
-        assert_eq!(target(&["--spawn"]), Target::Spawn);
-        assert_eq!(
-            target(&["--save", "x.rrd"]),
-            Target::Save(PathBuf::from("x.rrd"))
-        );
-        assert_eq!(target(&["--stdout"]), Target::Stdout);
-        assert_eq!(
-            target(&["--connect"]),
-            Target::Connect(rerun::DEFAULT_CONNECT_URL.to_owned())
-        );
-        assert_eq!(
-            target(&["--connect", "rerun+http://h:1/proxy"]),
-            Target::Connect("rerun+http://h:1/proxy".into())
-        );
-        assert_eq!(target(&["--no-rerun"]), Target::Off);
-        assert_eq!(VizArgs::headless().target, Target::Default);
-        use clap::Parser as _;
-        // Asking for nothing and for a file at once is a usage error, not a silent choice.
-        for other in [
-            &["--save", "x.rrd"][..],
-            &["--spawn"],
-            &["--stdout"],
-            &["--connect"],
-        ] {
-            let mut args = vec!["objloc", "--no-rerun"];
-            args.extend_from_slice(other);
-            assert_eq!(
-                Cli::try_parse_from(args).map(|_| ()).map_err(|e| e.kind()),
-                Err(clap::error::ErrorKind::ArgumentConflict),
-                "--no-rerun {other:?}"
-            );
-        }
-    }
-
-    #[test]
-    fn rrd_paths() {
-        assert_eq!(
-            rrd_beside(Path::new("out/report.json")),
-            PathBuf::from("out/report.rrd")
-        );
-        assert_eq!(
-            partial_path(Path::new("a/b.rrd")),
-            PathBuf::from("a/b.rrd.partial")
-        );
-        assert_eq!(open_command(Path::new("a/b.rrd")), "rerun a/b.rrd");
-    }
 }

@@ -11,10 +11,10 @@ use serde::{Deserialize, Serialize};
 use crate::fuse::grid::GridSpec;
 use crate::fuse::objects::Object;
 use crate::io::msgs::GroundTruth;
+use crate::io::msgs::iso_from_pose;
 use crate::out::report::Report;
 use crate::types::geometry::Iso3;
 use crate::types::track::PoseTrack;
-use crate::io::msgs::iso_from_pose;
 
 /// An estimate farther than this from a true box's centre (or than half the box's diagonal,
 /// if larger) cannot be that box.

@@ -1,0 +1,367 @@
+//! What the viewer shows, computed without the viewer: whole-grid summaries and projections,
+//! tile probabilities at image resolution, the pyramids of the confident tiles, colours (viridis,
+//! verdicts) and the recording id. The binary's Rerun observers log these; keeping them here
+//! keeps them unit-tested and free of the Rerun SDK.
+//!
+//! Invariants: pure functions of their inputs; sums in index order, so results do not depend
+//! on the thread count.
+
+use nalgebra::Point3;
+use rayon::prelude::*;
+use sha2::{Digest, Sha256};
+
+use crate::fuse::grid::{Grid, sigmoid};
+use crate::fuse::objects::Object;
+use crate::fuse::refine::Verdict;
+use crate::fuse::replay::SessionData;
+use crate::types::geometry::{Camera, Iso3};
+use crate::types::probs::TileProbs;
+
+/// The application id of every recording.
+pub const APP_ID: &str = "objloc";
+
+/// Colour of a frame's refinement verdict on the refined track: green when the pose was
+/// measured, grey without evidence, yellow/orange when the correction was refused, red when
+/// rolled back (visible at a glance).
+pub fn verdict_rgb(v: Verdict) -> [u8; 3] {
+    match v {
+        Verdict::Accepted => [60, 200, 90],
+        Verdict::Insignificant => [150, 220, 160],
+        Verdict::NoEvidence => [150, 150, 150],
+        Verdict::Ambiguous => [240, 220, 40],
+        Verdict::Gated => [255, 150, 30],
+        Verdict::RolledBack => [230, 30, 30],
+    }
+}
+
+/// Whole-grid numbers and the cells worth showing, in one pass over the grid.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GridSummary {
+    pub max_posterior: f64,
+    /// Mean binary entropy of a cell, bits.
+    pub mean_entropy_bits: f64,
+    /// (i, j, k) and posterior of the shown cells, in index order.
+    pub cells: Vec<([i32; 3], f32)>,
+    /// Mean posterior along x: ny x nz, row-major as an image with z up (row 0 = top z).
+    pub along_x: Vec<f32>,
+    /// Mean posterior along y: nx wide, nz high, z up.
+    pub along_y: Vec<f32>,
+    /// Mean posterior along z: nx wide, ny high, y up.
+    pub along_z: Vec<f32>,
+}
+
+fn binary_entropy_bits(p: f64) -> f64 {
+    let h = |q: f64| if q > 0.0 { -q * q.log2() } else { 0.0 };
+    h(p) + h(1.0 - p)
+}
+
+pub fn summarize_grid(grid: &Grid, min_posterior: f32, min_views: u16) -> GridSummary {
+    let [nx, ny, nz] = grid.spec.dims;
+    let mut along_x = vec![0f64; ny * nz];
+    let mut along_y = vec![0f64; nx * nz];
+    let mut along_z = vec![0f64; nx * ny];
+    let mut cells = Vec::new();
+    let mut max_l = f32::NEG_INFINITY;
+    let mut entropy = 0.0;
+    // The transcendental part in parallel, per cell; the sums below stay sequential in index
+    // order, so the result does not depend on the thread count.
+    // Most cells hold one of few values (the prior, outside every view, comes in long runs
+    // along a column), so each column remembers its last value: a pure function of the cell's
+    // log-odds either way.
+    let mut p_h: Vec<(f64, f64)> = vec![(0.0, 0.0); grid.log_odds.len()];
+    p_h.par_chunks_mut(nz.max(1))
+        .zip(grid.log_odds.par_chunks(nz.max(1)))
+        .for_each(|(out, col)| {
+            let mut last: Option<(u32, (f64, f64))> = None;
+            for (o, &l) in out.iter_mut().zip(col) {
+                *o = match last {
+                    Some((bits, v)) if bits == l.to_bits() => v,
+                    _ => {
+                        let p = sigmoid(f64::from(l));
+                        let v = (p, binary_entropy_bits(p));
+                        last = Some((l.to_bits(), v));
+                        v
+                    }
+                };
+            }
+        });
+    for i in 0..nx {
+        for j in 0..ny {
+            for k in 0..nz {
+                let idx = grid.spec.index(i, j, k);
+                max_l = max_l.max(grid.log_odds[idx]);
+                let (p, h) = p_h[idx];
+                entropy += h;
+                let (rz, ry) = (nz - 1 - k, ny - 1 - j);
+                along_x[rz * ny + j] += p;
+                along_y[rz * nx + i] += p;
+                along_z[ry * nx + i] += p;
+                if p as f32 > min_posterior && grid.views[idx] >= min_views {
+                    cells.push(([i as i32, j as i32, k as i32], p as f32));
+                }
+            }
+        }
+    }
+    let n = grid.spec.cells().max(1) as f64;
+    let mean = |v: Vec<f64>, d: usize| v.into_iter().map(|s| (s / d as f64) as f32).collect();
+    GridSummary {
+        max_posterior: sigmoid(f64::from(max_l)),
+        mean_entropy_bits: entropy / n,
+        cells,
+        along_x: mean(along_x, nx),
+        along_y: mean(along_y, ny),
+        along_z: mean(along_z, nz),
+    }
+}
+
+/// Tile probabilities as one f32 per image pixel (0 outside whole tiles: "no value").
+pub fn upscale(probs: &TileProbs, width: u32, height: u32) -> Vec<f32> {
+    let t = probs.tile_px.max(1) as usize;
+    let mut out = vec![0f32; width as usize * height as usize];
+    for y in 0..height as usize {
+        let r = y / t;
+        if r >= probs.rows {
+            break;
+        }
+        for x in 0..(width as usize).min(probs.cols * t) {
+            out[y * width as usize + x] = probs.p[r * probs.cols + x / t];
+        }
+    }
+    out
+}
+
+/// Line strips of the pyramids of tiles with p > `min_p`: four edges from the eye and the far
+/// rectangle at `depth_m` along the optical axis, in odom, with each tile's probability.
+pub fn pyramids(
+    camera: &Camera,
+    odom_from_camera: &Iso3,
+    probs: &TileProbs,
+    min_p: f32,
+    depth_m: f64,
+) -> Vec<(Vec<[f32; 3]>, f32)> {
+    let eye = odom_from_camera.translation.vector;
+    let eye = [eye.x as f32, eye.y as f32, eye.z as f32];
+    let t = f64::from(probs.tile_px);
+    let far = |u: f64, v: f64| {
+        let r = camera.ray(u, v);
+        let p = odom_from_camera * Point3::from(r * (depth_m / r.z));
+        [p.x as f32, p.y as f32, p.z as f32]
+    };
+    let mut out = Vec::new();
+    for r in 0..probs.rows {
+        for c in 0..probs.cols {
+            let p = probs.p[r * probs.cols + c];
+            if p.is_nan() || p <= min_p {
+                continue;
+            }
+            let (u0, v0) = (c as f64 * t, r as f64 * t);
+            let corners = [
+                far(u0, v0),
+                far(u0 + t, v0),
+                far(u0 + t, v0 + t),
+                far(u0, v0 + t),
+            ];
+            for k in corners {
+                out.push((vec![eye, k], p));
+            }
+            let mut rect = corners.to_vec();
+            rect.push(corners[0]);
+            out.push((rect, p));
+        }
+    }
+    out
+}
+
+/// Distance from the first (most massive) object's centroid to the nearest true box centre.
+pub fn centroid_error_m(objects: &[Object], data: &SessionData) -> Option<f64> {
+    let o = objects.first()?;
+    let gt = data.ground_truth.as_ref()?;
+    gt.box_center
+        .iter()
+        .map(|c| {
+            let d: f64 = (0..3)
+                .map(|a| (o.centroid_m[a] - c.position[a]).powi(2))
+                .sum();
+            d.sqrt()
+        })
+        .min_by(f64::total_cmp)
+}
+
+/// Viridis RGBA overlay: alpha grows with p so that confident tiles tint the frame.
+pub fn overlay_rgba(p: &[f32]) -> Vec<u8> {
+    let mut out = Vec::with_capacity(p.len() * 4);
+    for &v in p {
+        let [r, g, b] = viridis(v);
+        let a = if v > 0.0 {
+            (40.0 + 180.0 * v.clamp(0.0, 1.0)).round() as u8
+        } else {
+            0
+        };
+        out.extend_from_slice(&[r, g, b, a]);
+    }
+    out
+}
+
+/// Viridis (perceptually uniform), sampled at 9 points and interpolated linearly.
+const VIRIDIS: [[f32; 3]; 9] = [
+    [68.0, 1.0, 84.0],
+    [71.0, 44.0, 122.0],
+    [59.0, 81.0, 139.0],
+    [44.0, 113.0, 142.0],
+    [33.0, 144.0, 141.0],
+    [39.0, 173.0, 129.0],
+    [92.0, 200.0, 99.0],
+    [170.0, 220.0, 50.0],
+    [253.0, 231.0, 37.0],
+];
+
+/// Viridis colour of `t` in [0, 1] (clamped; NaN maps to 0).
+pub fn viridis(t: f32) -> [u8; 3] {
+    let t = if t.is_nan() { 0.0 } else { t.clamp(0.0, 1.0) };
+    let x = t * (VIRIDIS.len() - 1) as f32;
+    let i = (x.floor() as usize).min(VIRIDIS.len() - 2);
+    let f = x - i as f32;
+    let (a, b) = (VIRIDIS[i], VIRIDIS[i + 1]);
+    [0, 1, 2].map(|c| (a[c] + (b[c] - a[c]) * f).round() as u8)
+}
+
+/// A recording id from the inputs that determine the recording's content: `kind` names the
+/// command, `parts` are e.g. the session and model SHA-256 and the options as JSON.
+pub fn recording_id(kind: &str, parts: &[&str]) -> String {
+    let mut h = Sha256::new();
+    h.update(kind.as_bytes());
+    for p in parts {
+        // Length-prefixed so that ("ab", "c") and ("a", "bc") differ.
+        h.update((p.len() as u64).to_le_bytes());
+        h.update(p.as_bytes());
+    }
+    let hex = crate::types::digest::hex(&h.finalize()[..16]);
+    format!("{APP_ID}-{kind}-{hex}")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::fuse::grid::{GridSpec, logit};
+    use crate::types::geometry::iso_from_xy_yaw;
+
+    #[test]
+    fn upscale_repeats_tiles_and_leaves_partial_edges_empty() {
+        let probs = TileProbs {
+            rows: 1,
+            cols: 2,
+            tile_px: 2,
+            p: vec![0.25, 0.75],
+        };
+        // 5 x 3 image: tiles cover x 0..4, y 0..2; column 4 and row 2 stay 0.
+        let up = upscale(&probs, 5, 3);
+        assert_eq!(
+            up,
+            vec![
+                0.25, 0.25, 0.75, 0.75, 0.0, 0.25, 0.25, 0.75, 0.75, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+            ]
+        );
+    }
+
+    #[test]
+    fn pyramid_of_the_centre_tile_reaches_the_depth_along_the_axis() {
+        // 4 x 4 image, fx = fy = 2, centre (2, 2): the tile (1, 1) of 2 px spans u, v in [2, 4],
+        // so its far corners at depth 3 are x, y in {0, 3} (x = (u - 2) / 2 * 3).
+        let camera = Camera {
+            width: 4,
+            height: 4,
+            fx: 2.0,
+            fy: 2.0,
+            cx: 2.0,
+            cy: 2.0,
+        };
+        let probs = TileProbs {
+            rows: 2,
+            cols: 2,
+            tile_px: 2,
+            p: vec![0.1, 0.2, 0.3, 0.9],
+        };
+        let s = pyramids(&camera, &Iso3::identity(), &probs, 0.5, 3.0);
+        assert_eq!(
+            s.len(),
+            5,
+            "one tile above 0.5: 4 edges + the far rectangle"
+        );
+        assert_eq!(s[0].0, vec![[0.0, 0.0, 0.0], [0.0, 0.0, 3.0]]);
+        assert_eq!(s[2].0[1], [3.0, 3.0, 3.0]);
+        assert_eq!(s[4].0.len(), 5);
+        assert_eq!(s[4].0[0], s[4].0[4]);
+        assert!(s.iter().all(|(_, p)| *p == 0.9));
+        // Moved 1 m along x in odom: every point moves with it.
+        let moved = pyramids(&camera, &iso_from_xy_yaw(1.0, 0.0, 0.0), &probs, 0.5, 3.0);
+        assert_eq!(moved[2].0[1], [4.0, 3.0, 3.0]);
+    }
+
+    #[test]
+    fn grid_summary_projections_entropy_and_shown_cells() {
+        let spec = GridSpec {
+            origin_m: [0.0; 3],
+            voxel_size_m: 1.0,
+            dims: [2, 1, 2],
+        };
+        let mut grid = Grid::new(spec, 0.5).unwrap();
+        // Cell (1, 0, 1) at p = 0.8 seen twice; cell (0, 0, 0) at p = 0.8 seen once.
+        let hi = logit(0.8) as f32;
+        let a = spec.index(1, 0, 1);
+        let b = spec.index(0, 0, 0);
+        grid.log_odds[a] = hi;
+        grid.views[a] = 2;
+        grid.log_odds[b] = hi;
+        grid.views[b] = 1;
+        let s = summarize_grid(&grid, 0.5, 2);
+        assert_eq!(s.cells, vec![([1, 0, 1], 0.8)]);
+        assert!((s.max_posterior - 0.8).abs() < 1e-6);
+        // H(0.8) = 0.7219 bits, H(0.5) = 1: mean over 4 cells (2 * 0.7219 + 2) / 4.
+        assert!(
+            (s.mean_entropy_bits - 0.860_964).abs() < 1e-5,
+            "{}",
+            s.mean_entropy_bits
+        );
+        // Along z (x wide, y high): x = 0 -> (0.8 + 0.5) / 2, x = 1 -> (0.5 + 0.8) / 2.
+        assert!(s.along_z.iter().all(|v| (v - 0.65).abs() < 1e-6));
+        // Along y (x wide, z up): top row is k = 1: [0.5, 0.8]; bottom k = 0: [0.8, 0.5].
+        let want = [0.5, 0.8, 0.8, 0.5];
+        assert!(
+            s.along_y
+                .iter()
+                .zip(want)
+                .all(|(v, w)| (v - w).abs() < 1e-6),
+            "{:?}",
+            s.along_y
+        );
+        // Along x (y wide = 1, z up): k = 1 -> (0.5 + 0.8) / 2, k = 0 -> (0.8 + 0.5) / 2.
+        assert!(s.along_x.iter().all(|v| (v - 0.65).abs() < 1e-6));
+    }
+
+    #[test]
+    fn overlay_alpha_grows_with_p_and_empty_pixels_are_clear() {
+        let o = overlay_rgba(&[0.0, 1.0]);
+        assert_eq!(o, vec![68, 1, 84, 0, 253, 231, 37, 220]);
+    }
+    #[test]
+    fn viridis_ends_and_middle() {
+        assert_eq!(viridis(0.0), [68, 1, 84]);
+        assert_eq!(viridis(1.0), [253, 231, 37]);
+        assert_eq!(viridis(0.5), [33, 144, 141]);
+        // Halfway between samples 0 and 1: (68+71)/2 = 69.5 -> 70, (1+44)/2 = 22.5 -> 23.
+        assert_eq!(viridis(0.0625), [70, 23, 103]);
+        assert_eq!(viridis(-3.0), viridis(0.0));
+        assert_eq!(viridis(f32::NAN), viridis(0.0));
+    }
+
+    #[test]
+    fn recording_id_depends_on_every_part() {
+        let a = recording_id("fuse", &["ab", "c"]);
+        assert_eq!(a, recording_id("fuse", &["ab", "c"]));
+        assert_ne!(a, recording_id("fuse", &["a", "bc"]));
+        assert_ne!(a, recording_id("train", &["ab", "c"]));
+        assert!(a.starts_with("objloc-fuse-"));
+        assert_eq!(a.len(), "objloc-fuse-".len() + 32);
+    }
+
+}
