@@ -12,7 +12,7 @@ use rerun::RecordingStream;
 use super::{TIMELINE_FRAME, TIMELINE_LOG_TIME, VizError, log_err};
 use objloc_core::fuse::grid::Grid;
 use objloc_core::fuse::refine::Verdict;
-use objloc_core::fuse::replay::{FrameStep, Observer, SessionData};
+use objloc_core::fuse::replay::{FrameStep, Observer, ObserverError, SessionData};
 use objloc_core::io::msgs::iso_from_pose;
 use objloc_core::out::view::{
     centroid_error_m, overlay_rgba, pyramids, summarize_grid, upscale, verdict_rgb, viridis,
@@ -443,7 +443,7 @@ impl FuseViz {
 }
 
 impl Observer for FuseViz {
-    fn on_start(&mut self, data: &SessionData, grid: &Grid) -> anyhow::Result<()> {
+    fn on_start(&mut self, data: &SessionData, grid: &Grid) -> Result<(), ObserverError> {
         Ok(self.start(data, grid)?)
     }
     fn on_frame(
@@ -451,10 +451,10 @@ impl Observer for FuseViz {
         data: &SessionData,
         step: &FrameStep,
         grid: &Grid,
-    ) -> anyhow::Result<()> {
+    ) -> Result<(), ObserverError> {
         Ok(self.frame(data, step, grid)?)
     }
-    fn on_rollback(&mut self, _data: &SessionData) -> anyhow::Result<()> {
+    fn on_rollback(&mut self, _data: &SessionData) -> Result<(), ObserverError> {
         // The frames come again at /odom, logged over the refined pass at the same times; the
         // refined track restarts with each frame's verdict (rolled-back frames red).
         self.refined_track.clear();

@@ -21,8 +21,8 @@
 
 use nalgebra::{Point3, Vector3};
 
-use crate::types::image::Rgb8;
 use crate::types::geometry::{Camera, Iso3, yaw_of};
+use crate::types::image::Rgb8;
 
 /// Settings of the floor term. The defaults were chosen by a sweep over 20 sessions (shipped
 /// and held-out-style tours, docs/fuser.md "The floor"): cells of 0.15-0.20 m lose the rug's

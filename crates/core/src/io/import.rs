@@ -20,6 +20,7 @@ use std::path::{Path, PathBuf};
 
 use thiserror::Error;
 
+use crate::io::msgs::pose_from_iso;
 use crate::io::msgs::{
     CameraInfo, CompressedImage, Header, ObjectLabel, Odometry, RegionOfInterest, TfMessage,
     TransformStamped, Twist,
@@ -27,7 +28,6 @@ use crate::io::msgs::{
 use crate::io::session::{SessionError, SessionWriter, Topics};
 use crate::types::geometry::{Iso3, iso_from_parts};
 use crate::types::track::PoseTrack;
-use crate::io::msgs::pose_from_iso;
 
 /// An image stamp may lie this far outside the trajectory's time span.
 pub const MAX_EXTRAPOLATION_NS: i64 = crate::types::track::POSE_TOLERANCE_NS;
@@ -258,16 +258,22 @@ fn list_images(dir: &Path) -> Result<Vec<PathBuf>, ImportError> {
 /// The camera pose at `stamp_ns` by interpolation (across any interval: a trajectory may be
 /// sparse by design), at most [`MAX_EXTRAPOLATION_NS`] beyond its ends; or why not.
 fn pose_at(traj: &[TrajectoryPose], stamp_ns: i64) -> Result<Iso3, String> {
-    let track = PoseTrack::new(traj.iter().map(|p| (p.stamp_ns, p.world_from_camera)).collect());
-    track.interpolated(stamp_ns).ok_or_else(|| match (traj.first(), traj.last()) {
-        (Some(first), Some(last)) => format!(
-            "stamp {} is outside the trajectory ({} to {}) by more than 50 ms",
-            crate::io::session::fmt_ns(stamp_ns.max(0) as u64),
-            crate::io::session::fmt_ns(first.stamp_ns.max(0) as u64),
-            crate::io::session::fmt_ns(last.stamp_ns.max(0) as u64)
-        ),
-        _ => "empty trajectory".into(),
-    })
+    let track = PoseTrack::new(
+        traj.iter()
+            .map(|p| (p.stamp_ns, p.world_from_camera))
+            .collect(),
+    );
+    track
+        .interpolated(stamp_ns)
+        .ok_or_else(|| match (traj.first(), traj.last()) {
+            (Some(first), Some(last)) => format!(
+                "stamp {} is outside the trajectory ({} to {}) by more than 50 ms",
+                crate::io::session::fmt_ns(stamp_ns.max(0) as u64),
+                crate::io::session::fmt_ns(first.stamp_ns.max(0) as u64),
+                crate::io::session::fmt_ns(last.stamp_ns.max(0) as u64)
+            ),
+            _ => "empty trajectory".into(),
+        })
 }
 
 /// Imports the sequence into `out` (via `out.partial`); `progress(done, total)` per frame.
@@ -423,11 +429,12 @@ fn write_session(
             })?
             .into_rgb8();
         let (w, h) = img.dimensions();
-        let png =
-            crate::types::image::encode_png(w, h, img.as_raw()).map_err(|what| ImportError::Invalid {
+        let png = crate::types::image::encode_png(w, h, img.as_raw()).map_err(|what| {
+            ImportError::Invalid {
                 path: path.clone(),
                 what,
-            })?;
+            }
+        })?;
         let odom = Odometry {
             header: Header::new(*stamp_ns, "odom"),
             child_frame_id: "base_link".into(),

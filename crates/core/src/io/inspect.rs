@@ -14,7 +14,6 @@ use serde::Serialize;
 use crate::io::session::{Frame, Role, SessionError, SessionMsg, SessionReader, Topics, fmt_ns};
 use crate::types::geometry::Camera;
 
-
 #[derive(Debug, Clone, Serialize, PartialEq)]
 pub struct TopicSummary {
     pub topic: String,

@@ -19,11 +19,11 @@ use thiserror::Error;
 
 use crate::io::msgs::RegionOfInterest;
 use crate::io::session::{At, Frame, SessionError, SessionMsg, SessionReader, Topics};
-use crate::types::image::Rgb8;
 use crate::learn::features::{
     FeatureKind, TileFeature, bin_image, feature_count, histograms_of_bins, with_context,
 };
 use crate::learn::tree::{Examples, Third};
+use crate::types::image::Rgb8;
 
 /// Allowed tile sides: a tile must hold at least 4 pixels, and counts fit u16 up to 255.
 pub const TILE_PX_RANGE: std::ops::RangeInclusive<u32> = 2..=128;
@@ -71,7 +71,6 @@ pub struct LoadedSession {
     pub sha256: String,
     pub frames: Vec<SessionFrame>,
 }
-
 
 /// Reads a session's frames and labels. `object`: use only labels naming it (None: all).
 /// `labelled_only`: skip decoding frames without a label (training needs only those).

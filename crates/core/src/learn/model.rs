@@ -17,8 +17,6 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
-use crate::types::image::Rgb8;
-use crate::types::probs::{FrameClassifier, TileProbs};
 use crate::learn::dataset::{
     ExampleParams, ExampleSet, LoadedSession, TILE_PX_RANGE, build_examples,
 };
@@ -26,6 +24,8 @@ use crate::learn::features::{FeatureKind, TileFeature, tile_histograms, with_con
 use crate::learn::tree::{
     Examples, FitReport, Metrics, Third, Tree, TreeError, TreeParams, fit, metrics,
 };
+use crate::types::image::Rgb8;
+use crate::types::probs::{FrameClassifier, TileProbs};
 
 /// 2: the model may carry a region head (`region`), the tree `predict` answers with.
 pub const MODEL_VERSION: u32 = 2;

@@ -17,14 +17,14 @@ use std::path::{Path, PathBuf};
 use nalgebra::{Translation3, UnitQuaternion, Vector3};
 use thiserror::Error;
 
+use crate::io::msgs::pose_from_iso;
 use crate::io::msgs::{
     CameraInfo, CompressedImage, GroundTruth, Header, ObjectLabel, Odometry, Pose, PoseStamped,
     RegionOfInterest, TfMessage, TransformStamped, Twist, TwistStamped,
 };
 use crate::io::session::{SessionError, SessionWriter, Topics};
-use crate::types::geometry::{Iso3, camera_mount, iso_from_xy_yaw};
-use crate::io::msgs::pose_from_iso;
 use crate::types::geometry::wrap_angle;
+use crate::types::geometry::{Iso3, camera_mount, iso_from_xy_yaw};
 use crate::types::image::encode_png;
 pub use render::{FrameJitter, Rendered, Renderer};
 pub use robot::{Event, Pose2, Rng, SpeedNoise, Stop};

@@ -92,7 +92,6 @@ impl Event {
     }
 }
 
-
 #[derive(Debug, Clone, Copy)]
 enum Command {
     Rotate { angle_rad: f64 },
@@ -234,8 +233,8 @@ pub fn simulate(
 
 #[cfg(test)]
 mod tests {
-    use std::f64::consts::PI;
     use super::*;
+    use std::f64::consts::PI;
 
     fn stop(x: f64, y: f64, yaw: f64) -> Stop {
         Stop {

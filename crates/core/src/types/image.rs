@@ -28,4 +28,3 @@ pub fn encode_png(width: u32, height: u32, rgb: &[u8]) -> Result<Vec<u8>, String
         .map_err(|e| e.to_string())?;
     Ok(out)
 }
-

@@ -21,7 +21,12 @@ enum Bracket {
     Near(usize),
 }
 
-fn bracket(stamps: impl Fn(usize) -> i64, len: usize, stamp_ns: i64, gaps: bool) -> Option<Bracket> {
+fn bracket(
+    stamps: impl Fn(usize) -> i64,
+    len: usize,
+    stamp_ns: i64,
+    gaps: bool,
+) -> Option<Bracket> {
     // First index whose stamp is not before `stamp_ns`.
     let (mut lo, mut hi) = (0, len);
     while lo < hi {
@@ -43,7 +48,10 @@ fn bracket(stamps: impl Fn(usize) -> i64, len: usize, stamp_ns: i64, gaps: bool)
                 // A gap: interpolating across it would invent a pose.
                 return None;
             }
-            Some(Bracket::Between(a, (stamp_ns - t0) as f64 / (t1 - t0) as f64))
+            Some(Bracket::Between(
+                a,
+                (stamp_ns - t0) as f64 / (t1 - t0) as f64,
+            ))
         }
         (Some(a), None) => (stamp_ns - stamps(a) <= POSE_TOLERANCE_NS).then_some(Bracket::Near(a)),
         (None, Some(b)) => (stamps(b) - stamp_ns <= POSE_TOLERANCE_NS).then_some(Bracket::Near(b)),
@@ -83,13 +91,23 @@ impl PoseTrack {
     /// (no pose within [`POSE_TOLERANCE_NS`] on either side) or further than that beyond the
     /// track's ends.
     pub fn at(&self, stamp_ns: i64) -> Option<Iso3> {
-        self.resolve(bracket(|i| self.poses[i].0, self.poses.len(), stamp_ns, true)?)
+        self.resolve(bracket(
+            |i| self.poses[i].0,
+            self.poses.len(),
+            stamp_ns,
+            true,
+        )?)
     }
 
     /// Like [`PoseTrack::at`] but interpolating across gaps of any length: for trajectories
     /// that are sparse by design (one pose per keyframe).
     pub fn interpolated(&self, stamp_ns: i64) -> Option<Iso3> {
-        self.resolve(bracket(|i| self.poses[i].0, self.poses.len(), stamp_ns, false)?)
+        self.resolve(bracket(
+            |i| self.poses[i].0,
+            self.poses.len(),
+            stamp_ns,
+            false,
+        )?)
     }
 
     fn resolve(&self, b: Bracket) -> Option<Iso3> {

@@ -7,7 +7,6 @@
 
 use nalgebra::{Matrix2, Matrix2x3, Matrix3, Point3, SymmetricEigen, Vector3};
 
-
 use crate::fuse::grid::TileEvidence;
 use crate::types::geometry::{Camera, Iso3};
 

@@ -58,7 +58,6 @@ use search::separated_margin;
 
 use nalgebra::{Matrix2, Matrix3, Translation3, UnitQuaternion, Vector2, Vector3};
 
-
 use crate::fuse::floor::{FloorMap, FloorPatch};
 use crate::fuse::motion::Segment;
 use crate::types::geometry::{Camera, Iso3, yaw_of};
@@ -454,8 +453,8 @@ pub fn refine(q: &Localisation<'_>) -> Correction {
 mod tests {
     use super::*;
     use crate::fuse::grid::TileEvidence;
-    use nalgebra::Point3;
     use crate::types::geometry::{camera_mount, iso_from_xy_yaw};
+    use nalgebra::Point3;
 
     fn seg(start_s: f64, end_s: f64, v: f64, w: f64) -> Segment {
         Segment {

@@ -58,7 +58,17 @@ pub enum ReplayError {
         "{path}: no frame could be fused ({frames} frame(s) in the session, none with a pose and camera)"
     )]
     NothingFused { path: String, frames: usize },
+    /// An observer (the viewer, a report writer) failed; its error is the source.
+    #[error("{at}: observer failed")]
+    Observer {
+        at: At,
+        #[source]
+        source: ObserverError,
+    },
 }
+
+/// What an observer's failure carries: its own typed error, boxed, so the chain is kept.
+pub type ObserverError = Box<dyn std::error::Error + Send + Sync>;
 
 /// How to fuse.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -155,7 +165,7 @@ pub struct FrameStep {
 
 /// Sees the replay; cannot change it.
 pub trait Observer {
-    fn on_start(&mut self, _data: &SessionData, _grid: &Grid) -> anyhow::Result<()> {
+    fn on_start(&mut self, _data: &SessionData, _grid: &Grid) -> Result<(), ObserverError> {
         Ok(())
     }
     fn on_frame(
@@ -163,11 +173,11 @@ pub trait Observer {
         _data: &SessionData,
         _step: &FrameStep,
         _grid: &Grid,
-    ) -> anyhow::Result<()> {
+    ) -> Result<(), ObserverError> {
         Ok(())
     }
     /// The refined pass just seen is rolled back; the frames come again, fused at /odom.
-    fn on_rollback(&mut self, _data: &SessionData) -> anyhow::Result<()> {
+    fn on_rollback(&mut self, _data: &SessionData) -> Result<(), ObserverError> {
         Ok(())
     }
 }
@@ -226,7 +236,7 @@ pub fn replay(
             &ctx.data,
             &Grid::new(ctx.spec, ctx.prior).map_err(|e| ctx.grid_err(e))?,
         )
-        .map_err(|e| ctx.observer_err(None, &e))?;
+        .map_err(|e| ctx.observer_err(None, e))?;
     }
     let first = run_pass(&ctx, options, observers, None)?;
     let mut refinement = None;
@@ -237,7 +247,7 @@ pub fn replay(
         if roll {
             for o in observers.iter_mut() {
                 o.on_rollback(&ctx.data)
-                    .map_err(|e| ctx.observer_err(None, &e))?;
+                    .map_err(|e| ctx.observer_err(None, e))?;
             }
             let plain = FuseOptions {
                 refine_poses: false,

@@ -162,7 +162,7 @@ fn step(
         };
         for o in observers.iter_mut() {
             o.on_frame(data, &step, &pass.fuser.grid)
-                .map_err(|e| ctx.observer_err(Some(fr), &e))?;
+                .map_err(|e| ctx.observer_err(Some(fr), e))?;
         }
     }
     pass.per_frame.push(summary(

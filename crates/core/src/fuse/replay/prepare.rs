@@ -40,8 +40,8 @@ impl Context<'_> {
         }
     }
 
-    pub(super) fn observer_err(&self, fr: Option<&FrameRef>, e: &anyhow::Error) -> ReplayError {
-        ReplayError::Invalid {
+    pub(super) fn observer_err(&self, fr: Option<&FrameRef>, source: ObserverError) -> ReplayError {
+        ReplayError::Observer {
             at: match fr {
                 Some(fr) => self.reader.at(Some(&fr.topic), fr.log_time_ns),
                 None => At {
@@ -50,7 +50,7 @@ impl Context<'_> {
                     log_time_ns: None,
                 },
             },
-            what: format!("observer failed: {e:#}"),
+            source,
         }
     }
 }

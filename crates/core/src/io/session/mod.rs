@@ -16,11 +16,11 @@ use std::path::PathBuf;
 use thiserror::Error;
 
 use crate::io::cdr::CdrError;
-use crate::types::image::Rgb8;
 use crate::io::msgs::{
     CameraInfo, CompressedImage, GroundTruth, Image, ObjectLabel, Odometry, PoseStamped,
     RosMessage, TfMessage, TwistStamped,
 };
+use crate::types::image::Rgb8;
 
 /// Largest image objloc decodes, in pixels per side; anything larger is refused before
 /// allocating (a corrupt header can declare 100000 x 100000).
