@@ -33,8 +33,12 @@ pub enum DatasetError {
     /// Boxed: session errors are large and this one travels up every `Result`.
     #[error(transparent)]
     Session(Box<SessionError>),
-    #[error("{at}: frame does not decode: {what}")]
-    Frame { at: At, what: String },
+    #[error("{at}: frame does not decode: {source}")]
+    Frame {
+        at: At,
+        #[source]
+        source: crate::io::session::FrameError,
+    },
     #[error("{}: no frame has a label on {topic}{}", path.display(), object.as_ref().map(|o| format!(" for object {o:?}")).unwrap_or_default())]
     NoLabelledFrames {
         path: PathBuf,
@@ -118,9 +122,9 @@ pub fn load_session(
     let frames = selected
         .into_par_iter()
         .map(|(log_time_ns, topic, f, regions)| {
-            let image = f.decode_rgb8().map_err(|what| DatasetError::Frame {
+            let image = f.decode_rgb8().map_err(|source| DatasetError::Frame {
                 at: reader.at(Some(&topic), log_time_ns),
-                what,
+                source,
             })?;
             Ok(SessionFrame {
                 stamp_ns: f.stamp_ns,

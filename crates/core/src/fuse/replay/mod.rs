@@ -58,6 +58,13 @@ pub enum ReplayError {
         "{path}: no frame could be fused ({frames} frame(s) in the session, none with a pose and camera)"
     )]
     NothingFused { path: String, frames: usize },
+    /// A frame's pixels do not decode.
+    #[error("{at}: {source}")]
+    Frame {
+        at: At,
+        #[source]
+        source: crate::io::session::FrameError,
+    },
     /// An observer (the viewer, a report writer) failed; its error is the source.
     #[error("{at}: observer failed")]
     Observer {

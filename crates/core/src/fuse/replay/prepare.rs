@@ -210,7 +210,7 @@ pub(super) fn decode_frame(
     };
     let image = frame
         .decode_rgb8()
-        .map_err(|what| ReplayError::Invalid { at: at(), what })?;
+        .map_err(|source| ReplayError::Frame { at: at(), source })?;
     if (image.width, image.height) != (data.camera.width, data.camera.height) {
         return Err(ReplayError::Invalid {
             at: at(),

@@ -256,16 +256,52 @@ pub struct Frame {
     pub pixels: FramePixels,
 }
 
+/// Why a frame's pixels cannot be read.
+#[derive(Debug, thiserror::Error)]
+pub enum FrameError {
+    /// The encoded bytes are not an image (or not a complete one).
+    #[error("image does not decode: {0}")]
+    Decode(#[from] image::ImageError),
+    /// Reading the encoded bytes' header failed.
+    #[error("image does not decode: {0}")]
+    Header(#[from] std::io::Error),
+    /// A side is 0 or beyond [`MAX_IMAGE_SIDE_PX`].
+    #[error(
+        "image of {width} x {height} pixels refused (each side must be 1 to {MAX_IMAGE_SIDE_PX})"
+    )]
+    Size { width: u32, height: u32 },
+    /// A CompressedImage format other than PNG and JPEG.
+    #[error("compressed format {0:?} is not read (objloc reads png and jpeg)")]
+    Format(String),
+    /// A raw Image encoding objloc does not read.
+    #[error("raw encoding {0:?} is not read (rgb8, bgr8, rgba8, bgra8, mono8 are)")]
+    Encoding(String),
+    /// A raw Image row step shorter than a row.
+    #[error("step {step} is less than width {width} x {channels} bytes")]
+    Step {
+        step: usize,
+        width: usize,
+        channels: usize,
+    },
+    /// A raw Image with fewer bytes than its size needs.
+    #[error("raw image of {width} x {height} ({encoding}) needs {needed} bytes, has {have}")]
+    Length {
+        width: usize,
+        height: usize,
+        encoding: String,
+        needed: usize,
+        have: usize,
+    },
+}
+
 impl Frame {
     /// Width and height without decoding the pixels.
-    pub fn dimensions(&self) -> Result<(u32, u32), String> {
+    pub fn dimensions(&self) -> Result<(u32, u32), FrameError> {
         match &self.pixels {
             FramePixels::Encoded { data, .. } => {
-                image::ImageReader::new(std::io::Cursor::new(data))
-                    .with_guessed_format()
-                    .map_err(|e| e.to_string())?
-                    .into_dimensions()
-                    .map_err(|e| format!("image does not decode: {e}"))
+                Ok(image::ImageReader::new(std::io::Cursor::new(data))
+                    .with_guessed_format()?
+                    .into_dimensions()?)
             }
             FramePixels::Raw(img) => Ok((img.width, img.height)),
         }
@@ -280,12 +316,13 @@ impl Frame {
     }
 
     /// Decodes to RGB8. Sizes beyond [`MAX_IMAGE_SIDE_PX`] are refused before allocating.
-    pub fn decode_rgb8(&self) -> Result<Rgb8, String> {
+    pub fn decode_rgb8(&self) -> Result<Rgb8, FrameError> {
         let (w, h) = self.dimensions()?;
         if w == 0 || h == 0 || w > MAX_IMAGE_SIDE_PX || h > MAX_IMAGE_SIDE_PX {
-            return Err(format!(
-                "image of {w} x {h} pixels refused (each side must be 1 to {MAX_IMAGE_SIDE_PX})"
-            ));
+            return Err(FrameError::Size {
+                width: w,
+                height: h,
+            });
         }
         match &self.pixels {
             FramePixels::Encoded { format, data } => {
@@ -295,13 +332,9 @@ impl Frame {
                 } else if f.contains("jpeg") || f.contains("jpg") {
                     image::ImageFormat::Jpeg
                 } else {
-                    return Err(format!(
-                        "compressed format {format:?} is not read (objloc reads png and jpeg)"
-                    ));
+                    return Err(FrameError::Format(format.clone()));
                 };
-                let img = image::load_from_memory_with_format(data, fmt)
-                    .map_err(|e| format!("{fmt:?} image does not decode: {e}"))?
-                    .into_rgb8();
+                let img = image::load_from_memory_with_format(data, fmt)?.into_rgb8();
                 Ok(Rgb8 {
                     width: img.width(),
                     height: img.height(),
@@ -313,31 +346,30 @@ impl Frame {
     }
 }
 
-fn raw_to_rgb8(img: &Image) -> Result<Rgb8, String> {
+fn raw_to_rgb8(img: &Image) -> Result<Rgb8, FrameError> {
     let (w, h) = (img.width as usize, img.height as usize);
     let channels = match img.encoding.as_str() {
         "rgb8" | "bgr8" => 3,
         "rgba8" | "bgra8" => 4,
         "mono8" => 1,
-        other => {
-            return Err(format!(
-                "raw encoding {other:?} is not read (rgb8, bgr8, rgba8, bgra8, mono8 are)"
-            ));
-        }
+        other => return Err(FrameError::Encoding(other.to_owned())),
     };
     let step = img.step as usize;
     if step < w * channels {
-        return Err(format!(
-            "step {step} is less than width {w} x {channels} bytes"
-        ));
+        return Err(FrameError::Step {
+            step,
+            width: w,
+            channels,
+        });
     }
     if img.data.len() < step * (h - 1) + w * channels {
-        return Err(format!(
-            "raw image of {w} x {h} ({}) needs {} bytes, has {}",
-            img.encoding,
-            step * h,
-            img.data.len()
-        ));
+        return Err(FrameError::Length {
+            width: w,
+            height: h,
+            encoding: img.encoding.clone(),
+            needed: step * h,
+            have: img.data.len(),
+        });
     }
     let mut data = Vec::with_capacity(w * h * 3);
     for y in 0..h {
