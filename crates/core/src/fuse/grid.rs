@@ -638,11 +638,7 @@ mod tests {
     #[test]
     fn thread_count_does_not_change_the_result() {
         let run = |threads| {
-            let pool = rayon::ThreadPoolBuilder::new()
-                .num_threads(threads)
-                .build()
-                .unwrap();
-            pool.install(|| {
+            crate::types::testing::with_threads(threads, || {
                 let mut g = small_grid();
                 let cam = Camera::with_hfov(64, 48, 1.0);
                 let pose = camera_mount([-0.5, 0.1, 0.6], 0.2).inverse();

@@ -587,11 +587,7 @@ mod tests {
     #[test]
     fn blur_is_thread_count_independent() {
         let run = |threads| {
-            let pool = rayon::ThreadPoolBuilder::new()
-                .num_threads(threads)
-                .build()
-                .unwrap();
-            pool.install(|| {
+            crate::types::testing::with_threads(threads, || {
                 let mut g = grid();
                 for (i, l) in g.log_odds.iter_mut().enumerate() {
                     *l = (i as f32 * 0.011).sin() * 5.0;

@@ -8,4 +8,6 @@ pub mod geometry;
 pub mod image;
 pub mod probs;
 pub mod rng;
+#[cfg(test)]
+pub mod testing;
 pub mod track;

@@ -623,33 +623,25 @@ mod tests {
     fn nothing_to_align_to_means_no_correction() {
         let cam = Camera::with_hfov(64, 48, 1.0);
         let cov = motion_covariance(&[], 0.1, 0.1);
-        let c = refine(&Localisation {
-            landmarks: &[],
-            clusters: &[[30.0, 20.0]],
-            camera: &cam,
-            base_from_camera: &Iso3::identity(),
-            predicted: &Iso3::identity(),
-            cov: &cov,
-            floor: None,
-            gate: None,
-        });
-        assert_eq!(c, Correction::ZERO);
+        let at_origin = |landmarks: &[Landmark], clusters: &[[f64; 2]]| {
+            refine(&Localisation {
+                landmarks,
+                clusters,
+                camera: &cam,
+                base_from_camera: &Iso3::identity(),
+                predicted: &Iso3::identity(),
+                cov: &cov,
+                floor: None,
+                gate: None,
+            })
+        };
+        assert_eq!(at_origin(&[], &[[30.0, 20.0]]), Correction::ZERO);
         let lm = Landmark {
             position_m: Vector3::new(0.0, 0.0, 2.0),
             covariance_m2: Matrix3::zeros(),
         };
         // A landmark but no detection near it.
-        let c = refine(&Localisation {
-            landmarks: &[lm],
-            clusters: &[],
-            camera: &cam,
-            base_from_camera: &Iso3::identity(),
-            predicted: &Iso3::identity(),
-            cov: &cov,
-            floor: None,
-            gate: None,
-        });
-        assert_eq!(c, Correction::ZERO);
+        assert_eq!(at_origin(&[lm], &[]), Correction::ZERO);
     }
 
     /// The gate's chi-square by hand: covariance diag(0.01, 0.04, 0.0025) (plus the floors),
