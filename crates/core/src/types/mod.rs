@@ -1,4 +1,5 @@
-//! Shared values below every stage: planar and 3D geometry, the camera model, decoded
+//! Shared values below every stage: planar and 3D geometry, the camera model and its lens
+//! distortion, decoded
 //! images, hex digests, tile probabilities, pose tracks, a seeded RNG.
 //!
 //! May import: nothing of the crate (only external crates).
@@ -6,6 +7,7 @@
 pub mod digest;
 pub mod geometry;
 pub mod image;
+pub mod lens;
 pub mod probs;
 pub mod rng;
 #[cfg(test)]
