@@ -282,6 +282,47 @@ pub fn import(
     out: &Path,
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<ImportStats, ImportError> {
+    check_camera(opts)?;
+    let read = |p: &Path| {
+        std::fs::read_to_string(p).map_err(|source| ImportError::Io {
+            path: p.into(),
+            source,
+        })
+    };
+    let traj = parse_trajectory(&opts.trajectory, &read(&opts.trajectory)?)?;
+    let labels = match &opts.labels {
+        Some(p) => Some((p.clone(), parse_labels(p, &read(p)?)?)),
+        None => None,
+    };
+    let images = list_images(&opts.images)?;
+    if let Some((lp, l)) = &labels {
+        check_labels_name_images(opts, &images, lp, l)?;
+    }
+    let (posed, timestamps_from_names) = pose_images(opts, &traj, &images)?;
+    check_stamps(&images, &posed)?;
+
+    let result = write_session(opts, out, &images, &posed, labels.as_ref(), progress);
+    if result.is_err() {
+        // An error leaves nothing behind: no final file, no partial one.
+        let _ = std::fs::remove_file(crate::io::output::partial_path(out));
+    }
+    result.map(|(path, labelled)| ImportStats {
+        path,
+        frames: images.len(),
+        labelled,
+        timestamps_from_names,
+    })
+}
+
+/// File name of `p` as text (lossy), or empty.
+fn name_of(p: &Path) -> String {
+    p.file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default()
+}
+
+/// Refuses intrinsics that are not a pinhole camera.
+fn check_camera(opts: &ImportOptions) -> Result<(), ImportError> {
     let [fx, fy, cx, cy] = opts.camera;
     if !(fx > 0.0
         && fy > 0.0
@@ -297,33 +338,34 @@ pub fn import(
             ),
         });
     }
-    let read = |p: &Path| {
-        std::fs::read_to_string(p).map_err(|source| ImportError::Io {
-            path: p.into(),
-            source,
-        })
-    };
-    let traj = parse_trajectory(&opts.trajectory, &read(&opts.trajectory)?)?;
-    let labels = match &opts.labels {
-        Some(p) => Some((p.clone(), parse_labels(p, &read(p)?)?)),
-        None => None,
-    };
-    let images = list_images(&opts.images)?;
-    let name_of = |p: &Path| {
-        p.file_name()
-            .map(|n| n.to_string_lossy().into_owned())
-            .unwrap_or_default()
-    };
-    if let Some((lp, l)) = &labels {
-        let names: Vec<String> = images.iter().map(|p| name_of(p)).collect();
-        if let Some((name, rows)) = l.iter().find(|(n, _)| !names.contains(n)) {
-            return Err(ImportError::Line {
-                path: lp.clone(),
-                line: rows.first().map_or(0, |r| r.0),
-                what: format!("image {name:?} is not in {}", opts.images.display()),
-            });
-        }
+    Ok(())
+}
+
+/// Refuses label rows (of file `lp`) for an image that is not among `images`.
+fn check_labels_name_images(
+    opts: &ImportOptions,
+    images: &[PathBuf],
+    lp: &Path,
+    labels: &Labels,
+) -> Result<(), ImportError> {
+    let names: Vec<String> = images.iter().map(|p| name_of(p)).collect();
+    if let Some((name, rows)) = labels.iter().find(|(n, _)| !names.contains(n)) {
+        return Err(ImportError::Line {
+            path: lp.into(),
+            line: rows.first().map_or(0, |r| r.0),
+            what: format!("image {name:?} is not in {}", opts.images.display()),
+        });
     }
+    Ok(())
+}
+
+/// (stamp, pose) per image, and whether the stamps came from the file names (else image i
+/// took trajectory line i).
+fn pose_images(
+    opts: &ImportOptions,
+    traj: &[TrajectoryPose],
+    images: &[PathBuf],
+) -> Result<(Vec<(i64, Iso3)>, bool), ImportError> {
     let stems: Option<Vec<i64>> = images
         .iter()
         .map(|p| {
@@ -332,38 +374,41 @@ pub fn import(
                 .and_then(parse_seconds_ns)
         })
         .collect();
-    let timestamps_from_names = stems.is_some();
-    // (stamp, pose) per image.
-    let posed: Vec<(i64, Iso3)> = match &stems {
-        Some(stamps) => images
-            .iter()
-            .zip(stamps)
-            .map(|(p, s)| {
-                pose_at(&traj, *s)
-                    .map(|pose| (*s, pose))
-                    .map_err(|what| ImportError::Invalid {
-                        path: p.clone(),
-                        what,
-                    })
-            })
-            .collect::<Result<_, _>>()?,
-        None => {
-            if images.len() != traj.len() {
-                return Err(ImportError::Invalid {
-                    path: opts.trajectory.clone(),
-                    what: format!(
-                        "{} poses for {} images in {} (file names are not timestamps, so images are matched to lines in order)",
-                        traj.len(),
-                        images.len(),
-                        opts.images.display()
-                    ),
-                });
-            }
-            traj.iter()
-                .map(|t| (t.stamp_ns, t.world_from_camera))
-                .collect()
+    let Some(stamps) = stems else {
+        if images.len() != traj.len() {
+            return Err(ImportError::Invalid {
+                path: opts.trajectory.clone(),
+                what: format!(
+                    "{} poses for {} images in {} (file names are not timestamps, so images are matched to lines in order)",
+                    traj.len(),
+                    images.len(),
+                    opts.images.display()
+                ),
+            });
         }
+        let posed = traj
+            .iter()
+            .map(|t| (t.stamp_ns, t.world_from_camera))
+            .collect();
+        return Ok((posed, false));
     };
+    let posed = images
+        .iter()
+        .zip(&stamps)
+        .map(|(p, s)| {
+            pose_at(traj, *s)
+                .map(|pose| (*s, pose))
+                .map_err(|what| ImportError::Invalid {
+                    path: p.clone(),
+                    what,
+                })
+        })
+        .collect::<Result<_, _>>()?;
+    Ok((posed, true))
+}
+
+/// Refuses image stamps that do not increase or that lie before 1970.
+fn check_stamps(images: &[PathBuf], posed: &[(i64, Iso3)]) -> Result<(), ImportError> {
     if let Some(w) = posed.windows(2).position(|w| w[1].0 <= w[0].0) {
         return Err(ImportError::Invalid {
             path: images[w + 1].clone(),
@@ -376,18 +421,7 @@ pub fn import(
             what: "stamps before 1970 cannot be MCAP log times".into(),
         });
     }
-
-    let result = write_session(opts, out, &images, &posed, labels.as_ref(), progress);
-    if result.is_err() {
-        // An error leaves nothing behind: no final file, no partial one.
-        let _ = std::fs::remove_file(crate::io::output::partial_path(out));
-    }
-    result.map(|(path, labelled)| ImportStats {
-        path,
-        frames: images.len(),
-        labelled,
-        timestamps_from_names,
-    })
+    Ok(())
 }
 
 fn write_session(
@@ -399,11 +433,6 @@ fn write_session(
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<(PathBuf, usize), ImportError> {
     let [fx, fy, cx, cy] = opts.camera;
-    let name_of = |p: &Path| {
-        p.file_name()
-            .map(|n| n.to_string_lossy().into_owned())
-            .unwrap_or_default()
-    };
     let topics = Topics::default();
     let mut writer = SessionWriter::create(out)?;
     let first_ns = posed[0].0;

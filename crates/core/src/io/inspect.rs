@@ -4,6 +4,9 @@
 //! counted, not decoded; missing session topics are listed, not fatal; damage that leaves the
 //! rest readable (a truncated tail) is a warning with how much was read; every frame of a
 //! session topic is decoded, and the first that does not decode is an error.
+//!
+//! Layout: one scan decodes the session-role messages, then each warning has its own check
+//! over what the scan found, applied in a fixed order (so the warnings print in that order).
 
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -66,11 +69,63 @@ pub fn summarize(path: &Path, topics: Topics) -> Result<Summary, SessionError> {
     summarize_reader(&reader)
 }
 
+/// Summarises an open session: its topics, frames, labels and ground truth, and what looks
+/// wrong with it.
 pub fn summarize_reader(reader: &SessionReader) -> Result<Summary, SessionError> {
     let topics = reader.topics();
     let raw = reader.raw_messages();
+    let mut warnings = reader.warnings.clone();
+    warnings.extend(backwards_warnings(reader));
+    let mut scan = scan(reader)?;
+    warnings.append(&mut scan.warnings);
+    check_frames_decode(reader, std::mem::take(&mut scan.frames))?;
+    warnings.extend(size_mismatch_warning(&scan));
+    warnings.extend(unposed_warning(&scan, topics));
+    warnings.extend(orphan_label_warning(&scan));
+
+    let mut objects_labelled: Vec<String> = scan
+        .labels
+        .iter()
+        .filter(|l| l.labelled)
+        .map(|l| l.object.clone())
+        .collect();
+    objects_labelled.sort();
+    objects_labelled.dedup();
+
+    let start_ns = raw.first().map(|m| m.log_time_ns);
+    let end_ns = raw.last().map(|m| m.log_time_ns);
+    Ok(Summary {
+        path: reader.path().display().to_string(),
+        profile: reader.profile.clone(),
+        library: reader.library.clone(),
+        file_bytes: reader.file_len,
+        bytes_intact: reader.bytes_intact,
+        messages: raw.len(),
+        start_ns,
+        end_ns,
+        duration_s: match (start_ns, end_ns) {
+            (Some(a), Some(b)) => (b - a) as f64 * 1e-9,
+            _ => 0.0,
+        },
+        topics: topic_rows(reader),
+        frames: scan.frame_stamps.len(),
+        labelled_frames: scan.labels.iter().filter(|l| l.labelled).count(),
+        background_frames: scan.labels.iter().filter(|l| !l.labelled).count(),
+        missing_topics: missing_topics(reader, !scan.frame_stamps.is_empty()),
+        image: scan.image,
+        intrinsics: scan.intrinsics,
+        objects_labelled,
+        ground_truth: scan.gt_present,
+        ground_truth_objects: scan.gt_objects,
+        warnings,
+    })
+}
+
+/// One row per channel, sorted by topic: message count and first and last log time.
+fn topic_rows(reader: &SessionReader) -> Vec<TopicSummary> {
+    let topics = reader.topics();
     let mut per_channel: BTreeMap<u16, (usize, Option<u64>, Option<u64>)> = BTreeMap::new();
-    for m in raw {
+    for m in reader.raw_messages() {
         let e = per_channel.entry(m.channel_id).or_insert((0, None, None));
         e.0 += 1;
         e.1 = Some(e.1.map_or(m.log_time_ns, |t: u64| t.min(m.log_time_ns)));
@@ -93,50 +148,80 @@ pub fn summarize_reader(reader: &SessionReader) -> Result<Summary, SessionError>
         })
         .collect();
     topic_rows.sort_by(|a, b| a.topic.cmp(&b.topic));
+    topic_rows
+}
 
-    let mut warnings = reader.warnings.clone();
-    for (topic, t, prev) in &reader.backwards {
-        warnings.push(format!(
+/// A warning per topic whose log times go backwards.
+fn backwards_warnings(reader: &SessionReader) -> impl Iterator<Item = String> + '_ {
+    reader.backwards.iter().map(|(topic, t, prev)| {
+        format!(
             "timestamps go backwards on {topic}: log time {} after {}",
             fmt_ns(*t),
             fmt_ns(*prev)
-        ));
-    }
+        )
+    })
+}
 
-    let mut frame_stamps: Vec<(i64, u64)> = Vec::new();
-    let mut odom_stamps: Vec<i64> = Vec::new();
-    let mut image: Option<ImageSummary> = None;
-    let mut intrinsics: Option<Camera> = None;
-    let mut info_size: Option<(u32, u32)> = None;
-    let mut labels: Vec<(i64, u64, bool, String)> = Vec::new();
-    let mut gt_objects: Vec<String> = Vec::new();
-    let mut gt_present = false;
-    let mut frames: Vec<(String, u64, Frame)> = Vec::new();
+/// A label message as the scan saw it.
+struct LabelSeen {
+    stamp_ns: i64,
+    log_time_ns: u64,
+    /// It boxes the object (otherwise it marks a background frame).
+    labelled: bool,
+    object: String,
+}
 
+/// What one pass over the session-role messages found.
+#[derive(Default)]
+struct Scan {
+    /// (header stamp, log time) of every frame, in replay order.
+    frame_stamps: Vec<(i64, u64)>,
+    /// Header stamps of every odometry message, sorted.
+    odom_stamps: Vec<i64>,
+    /// The first frame's size and encoding.
+    image: Option<ImageSummary>,
+    /// From the first CameraInfo.
+    intrinsics: Option<Camera>,
+    /// Image size of the last CameraInfo.
+    info_size: Option<(u32, u32)>,
+    labels: Vec<LabelSeen>,
+    /// Ground-truth object names, in first-appearance order.
+    gt_objects: Vec<String>,
+    gt_present: bool,
+    /// (topic, log time, frame) of every frame, for the decode check.
+    frames: Vec<(String, u64, Frame)>,
+    /// Warnings about single messages, in replay order.
+    warnings: Vec<String>,
+}
+
+/// Decodes every session-role message in replay order; fails on the first that does not
+/// decode (frames: only their size is read here).
+fn scan(reader: &SessionReader) -> Result<Scan, SessionError> {
+    let mut s = Scan::default();
     for msg in reader.messages() {
         let m = msg?;
         match m.msg {
             SessionMsg::Frame(f) => {
-                if image.is_none() {
-                    let (w, h) = f.dimensions().map_err(|what| SessionError::Invalid {
+                if s.image.is_none() {
+                    let (w, h) = f.dimensions().map_err(|e| SessionError::Invalid {
                         at: reader.at(Some(&m.topic), m.log_time_ns),
-                        what,
+                        what: e.to_string(),
                     })?;
-                    image = Some(ImageSummary {
+                    s.image = Some(ImageSummary {
                         width: w,
                         height: h,
                         encoding: f.encoding(),
                     });
                 }
-                frame_stamps.push((f.stamp_ns, m.log_time_ns));
-                frames.push((m.topic, m.log_time_ns, f));
+                s.frame_stamps.push((f.stamp_ns, m.log_time_ns));
+                s.frames.push((m.topic, m.log_time_ns, f));
             }
             SessionMsg::CameraInfo(ci) => {
-                info_size = Some((ci.width, ci.height));
-                if intrinsics.is_none() {
-                    intrinsics = Camera::from_info(&ci);
-                    if intrinsics.is_none() {
-                        warnings.push(format!(
+                s.info_size = Some((ci.width, ci.height));
+                if s.intrinsics.is_none() {
+                    s.intrinsics = Camera::from_info(&ci);
+                    if s.intrinsics.is_none() {
+                        s.warnings.push(format!(
                             "{} at {}: CameraInfo K is not a valid pinhole camera",
                             m.topic,
                             fmt_ns(m.log_time_ns)
@@ -144,31 +229,39 @@ pub fn summarize_reader(reader: &SessionReader) -> Result<Summary, SessionError>
                     }
                 }
             }
-            SessionMsg::Odom(o) => odom_stamps.push(o.header.stamp_ns),
-            SessionMsg::Label(l) => labels.push((
-                l.header.stamp_ns,
-                m.log_time_ns,
-                !l.regions.is_empty(),
-                l.object,
-            )),
+            SessionMsg::Odom(o) => s.odom_stamps.push(o.header.stamp_ns),
+            SessionMsg::Label(l) => s.labels.push(LabelSeen {
+                stamp_ns: l.header.stamp_ns,
+                log_time_ns: m.log_time_ns,
+                labelled: !l.regions.is_empty(),
+                object: l.object,
+            }),
             SessionMsg::GroundTruthObjects(g) => {
-                gt_present = true;
+                s.gt_present = true;
                 for o in g.object {
-                    if !gt_objects.contains(&o) {
-                        gt_objects.push(o);
+                    if !s.gt_objects.contains(&o) {
+                        s.gt_objects.push(o);
                     }
                 }
             }
-            SessionMsg::GroundTruthPose(_) => gt_present = true,
+            SessionMsg::GroundTruthPose(_) => s.gt_present = true,
             SessionMsg::TfStatic(_) | SessionMsg::CmdVel(_) => {}
         }
     }
+    s.odom_stamps.sort_unstable();
+    Ok(s)
+}
 
+/// Fails on the first frame, in replay order, whose image does not decode.
+fn check_frames_decode(
+    reader: &SessionReader,
+    frames: Vec<(String, u64, Frame)>,
+) -> Result<(), SessionError> {
     // Every frame must decode: one corrupt PNG would otherwise surface only deep inside train
     // or fuse. The first failure in replay order is reported, whatever the thread count.
     let failures: Vec<Option<String>> = frames
         .par_iter()
-        .map(|(_, _, f)| f.decode_rgb8().err())
+        .map(|(_, _, f)| f.decode_rgb8().err().map(|e| e.to_string()))
         .collect();
     if let Some(((topic, log_time_ns, _), what)) = frames
         .iter()
@@ -180,88 +273,63 @@ pub fn summarize_reader(reader: &SessionReader) -> Result<Summary, SessionError>
             what,
         });
     }
-    drop(frames);
+    Ok(())
+}
 
-    if let (Some(img), Some((w, h))) = (&image, info_size)
-        && (img.width, img.height) != (w, h)
-    {
-        warnings.push(format!(
+/// Warns when the frames' size is not the one CameraInfo gives.
+fn size_mismatch_warning(scan: &Scan) -> Option<String> {
+    let (img, (w, h)) = (scan.image.as_ref()?, scan.info_size?);
+    ((img.width, img.height) != (w, h)).then(|| {
+        format!(
             "frames are {} x {} but CameraInfo says {w} x {h}",
             img.width, img.height
-        ));
-    }
+        )
+    })
+}
 
-    odom_stamps.sort_unstable();
-    let unposed: Vec<&(i64, u64)> = frame_stamps
+/// Warns about frames with no odometry pose close enough in time to pose them.
+fn unposed_warning(scan: &Scan, topics: &Topics) -> Option<String> {
+    let unposed: Vec<&(i64, u64)> = scan
+        .frame_stamps
         .iter()
-        .filter(|(stamp, _)| !crate::types::track::covered(&odom_stamps, *stamp))
+        .filter(|(stamp, _)| !crate::types::track::covered(&scan.odom_stamps, *stamp))
         .collect();
-    if let Some((_, lt)) = unposed.first() {
-        warnings.push(format!(
-            "{} frame(s) have no {} pose within 50 ms (first at log time {})",
-            unposed.len(),
-            topics.odom,
-            fmt_ns(*lt)
-        ));
-    }
+    let (_, lt) = unposed.first()?;
+    Some(format!(
+        "{} frame(s) have no {} pose within 50 ms (first at log time {})",
+        unposed.len(),
+        topics.odom,
+        fmt_ns(*lt)
+    ))
+}
 
-    let mut frame_set: Vec<i64> = frame_stamps.iter().map(|(s, _)| *s).collect();
+/// Warns about labels that name no frame (no frame has their stamp).
+fn orphan_label_warning(scan: &Scan) -> Option<String> {
+    let mut frame_set: Vec<i64> = scan.frame_stamps.iter().map(|(s, _)| *s).collect();
     frame_set.sort_unstable();
-    let orphan: Vec<&(i64, u64, bool, String)> = labels
+    let orphan: Vec<&LabelSeen> = scan
+        .labels
         .iter()
-        .filter(|(s, ..)| frame_set.binary_search(s).is_err())
+        .filter(|l| frame_set.binary_search(&l.stamp_ns).is_err())
         .collect();
-    if let Some((_, lt, ..)) = orphan.first() {
-        warnings.push(format!(
-            "{} label(s) have no frame with the same stamp (first at log time {})",
-            orphan.len(),
-            fmt_ns(*lt)
-        ));
-    }
+    let first = orphan.first()?;
+    Some(format!(
+        "{} label(s) have no frame with the same stamp (first at log time {})",
+        orphan.len(),
+        fmt_ns(first.log_time_ns)
+    ))
+}
 
-    let mut objects_labelled: Vec<String> =
-        labels.iter().filter(|l| l.2).map(|l| l.3.clone()).collect();
-    objects_labelled.sort();
-    objects_labelled.dedup();
-
-    let missing_topics: Vec<String> = Role::ALL
+/// Session topics (by role) with no message; the two image roles count as one.
+fn missing_topics(reader: &SessionReader, has_frames: bool) -> Vec<String> {
+    let topics = reader.topics();
+    Role::ALL
         .into_iter()
         .filter(|r| *r != Role::Image && *r != Role::CompressedImage)
         .filter(|r| reader.count(topics.get(*r)) == 0)
         .map(|r| topics.get(r).to_owned())
-        .chain(
-            (frame_stamps.is_empty())
-                .then(|| format!("{} (or {})", topics.compressed_image, topics.image)),
-        )
-        .collect();
-
-    let start_ns = raw.first().map(|m| m.log_time_ns);
-    let end_ns = raw.last().map(|m| m.log_time_ns);
-    Ok(Summary {
-        path: reader.path().display().to_string(),
-        profile: reader.profile.clone(),
-        library: reader.library.clone(),
-        file_bytes: reader.file_len,
-        bytes_intact: reader.bytes_intact,
-        messages: raw.len(),
-        start_ns,
-        end_ns,
-        duration_s: match (start_ns, end_ns) {
-            (Some(a), Some(b)) => (b - a) as f64 * 1e-9,
-            _ => 0.0,
-        },
-        topics: topic_rows,
-        frames: frame_stamps.len(),
-        image,
-        intrinsics,
-        labelled_frames: labels.iter().filter(|l| l.2).count(),
-        background_frames: labels.iter().filter(|l| !l.2).count(),
-        objects_labelled,
-        ground_truth: gt_present,
-        ground_truth_objects: gt_objects,
-        missing_topics,
-        warnings,
-    })
+        .chain((!has_frames).then(|| format!("{} (or {})", topics.compressed_image, topics.image)))
+        .collect()
 }
 
 impl Summary {

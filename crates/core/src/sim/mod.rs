@@ -24,7 +24,7 @@ use crate::io::msgs::{
 };
 use crate::io::session::{SessionError, SessionWriter, Topics};
 use crate::types::geometry::wrap_angle;
-use crate::types::geometry::{Iso3, camera_mount, iso_from_xy_yaw};
+use crate::types::geometry::{Camera, Iso3, camera_mount, iso_from_xy_yaw};
 use crate::types::image::encode_png;
 pub use render::{FrameJitter, Rendered, Renderer};
 pub use robot::{Event, Pose2, Rng, SpeedNoise, Stop};
@@ -377,16 +377,14 @@ pub fn record(
         })?;
     }
 
-    let result = write_session(
+    let recording = Recording {
         scene,
         opts,
-        out,
-        &events,
-        &full,
-        &background,
-        progress,
-        stops.len(),
-    );
+        full: &full,
+        background: &background,
+        object_names: scene.object_names(),
+    };
+    let result = recording.write_session(out, &events, progress, stops.len());
     if result.is_err() {
         // An error (unlike a kill) leaves nothing behind: no final file, no partial one.
         let _ = std::fs::remove_file(crate::io::output::partial_path(out));
@@ -394,185 +392,265 @@ pub fn record(
     result
 }
 
-#[allow(clippy::too_many_arguments)]
-fn write_session(
-    scene: &Scene,
-    opts: &SimOptions,
-    out: &Path,
-    events: &[Event],
-    full: &Renderer,
-    background: &Renderer,
-    progress: &mut dyn FnMut(usize, usize),
-    total_frames: usize,
-) -> Result<RecordStats, SimError> {
-    let camera = *full.camera();
-    let mount = base_from_optical(scene);
-    let topics = Topics::default();
-    let mut writer = SessionWriter::create(out)?;
-    let mut messages = 0usize;
-    let tf = TfMessage {
-        transforms: vec![TransformStamped {
-            header: Header::new(START_NS, BASE_FRAME),
-            child_frame_id: CAMERA_FRAME.into(),
-            translation: [
-                mount.translation.x,
-                mount.translation.y,
-                mount.translation.z,
-            ],
-            rotation_xyzw: pose_from_iso(&mount).orientation_xyzw,
-        }],
-    };
-    writer.write(&topics.tf_static, START_NS, &tf)?;
-    let boxes = ground_truth_boxes(scene);
-    let gt = GroundTruth {
-        header: Header::new(START_NS, ODOM_FRAME),
-        object: boxes.iter().map(|b| b.0.clone()).collect(),
-        box_center: boxes.iter().map(|b| pose_from_iso(&b.1)).collect(),
-        box_size: boxes.iter().map(|b| b.2).collect(),
-    };
-    writer.write(&topics.ground_truth_objects, START_NS, &gt)?;
-    messages += 2;
-
-    let mut camera_rng = Rng::new(opts.seed ^ CAMERA_STREAM);
-    let mut frames = 0usize;
-    let object_names = scene.object_names();
-    for ev in events {
-        match ev {
-            Event::CmdVel {
-                stamp_ns,
-                linear_m_s,
-                angular_rad_s,
-            } => {
-                let msg = TwistStamped {
-                    header: Header::new(*stamp_ns, BASE_FRAME),
-                    twist: Twist {
-                        linear: [*linear_m_s, 0.0, 0.0],
-                        angular: [0.0, 0.0, *angular_rad_s],
-                    },
-                };
-                writer.write(&topics.cmd_vel, *stamp_ns, &msg)?;
-                messages += 1;
-            }
-            Event::Pose {
-                stamp_ns,
-                nominal,
-                truth,
-                linear_m_s,
-                angular_rad_s,
-            } => {
-                messages += write_poses(
-                    &mut writer,
-                    &topics,
-                    *stamp_ns,
-                    nominal,
-                    truth,
-                    *linear_m_s,
-                    *angular_rad_s,
-                )?;
-            }
-            Event::Frame {
-                stamp_ns,
-                index,
-                background: is_background,
-                nominal,
-                truth,
-            } => {
-                let stamp_ns = *stamp_ns;
-                messages += write_poses(&mut writer, &topics, stamp_ns, nominal, truth, 0.0, 0.0)?;
-                let jitter = frame_jitter(&mut camera_rng);
-                let renderer = if *is_background { background } else { full };
-                let odom_from_optical = iso_from_pose2(truth) * mount;
-                let rendered = renderer.render(&odom_from_optical, &jitter);
-                let png =
-                    encode_png(rendered.width, rendered.height, &rendered.rgb).map_err(|what| {
-                        SimError::Encode {
-                            index: *index,
-                            stamp_ns,
-                            what,
-                        }
-                    })?;
-                let header = Header::new(stamp_ns, CAMERA_FRAME);
-                let labels: Vec<ObjectLabel> = match opts.kind {
-                    Kind::Train => vec![ObjectLabel {
-                        header: header.clone(),
-                        object: scene.target.clone(),
-                        regions: label_regions(&rendered, renderer, &scene.target),
-                    }],
-                    Kind::Tour => object_names
-                        .iter()
-                        .map(|o| ObjectLabel {
-                            header: header.clone(),
-                            object: o.clone(),
-                            regions: label_regions(&rendered, renderer, o),
-                        })
-                        .collect(),
-                };
-                if let Some(dir) = &opts.dump_frames {
-                    dump_frame(dir, *index, &rendered, &png, &labels)?;
-                }
-                writer.write(
-                    &topics.compressed_image,
-                    stamp_ns,
-                    &CompressedImage {
-                        header: header.clone(),
-                        format: "png".into(),
-                        data: png,
-                    },
-                )?;
-                let info = CameraInfo::pinhole(
-                    header.clone(),
-                    camera.width,
-                    camera.height,
-                    camera.fx,
-                    camera.fy,
-                    camera.cx,
-                    camera.cy,
-                );
-                writer.write(&topics.camera_info, stamp_ns, &info)?;
-                for l in &labels {
-                    writer.write(&topics.labels, stamp_ns, l)?;
-                }
-                messages += 2 + labels.len();
-                frames += 1;
-                progress(frames, total_frames);
-            }
-        }
-    }
-    let path = writer.finish()?;
-    Ok(RecordStats {
-        path,
-        frames,
-        messages,
-    })
+/// What a recording renders with: the scene, the options, and the renderers with and
+/// without the target.
+struct Recording<'a> {
+    scene: &'a Scene,
+    opts: &'a SimOptions,
+    full: &'a Renderer,
+    background: &'a Renderer,
+    /// The scene's object names, sorted (the labels of a tour frame).
+    object_names: Vec<String>,
 }
 
-fn write_poses(
-    writer: &mut SessionWriter,
-    topics: &Topics,
+/// The session being written, and how many messages went into it.
+struct Sink {
+    writer: SessionWriter,
+    topics: Topics,
+    messages: usize,
+}
+
+/// A frame to take: which stop, when, with or without the target, and where the camera is.
+struct Shot {
+    index: usize,
     stamp_ns: i64,
-    nominal: &Pose2,
-    truth: &Pose2,
-    linear_m_s: f64,
-    angular_rad_s: f64,
-) -> Result<usize, SimError> {
-    let odom = Odometry {
-        header: Header::new(stamp_ns, ODOM_FRAME),
-        child_frame_id: BASE_FRAME.into(),
-        pose: pose3(nominal),
-        pose_covariance: [0.0; 36],
-        twist: Twist {
-            linear: [linear_m_s, 0.0, 0.0],
-            angular: [0.0, 0.0, angular_rad_s],
-        },
-        twist_covariance: [0.0; 36],
-    };
-    writer.write(&topics.odom, stamp_ns, &odom)?;
-    let gt = PoseStamped {
-        header: Header::new(stamp_ns, ODOM_FRAME),
-        pose: pose3(truth),
-    };
-    writer.write(&topics.ground_truth_pose, stamp_ns, &gt)?;
-    Ok(2)
+    background: bool,
+    odom_from_optical: Iso3,
+}
+
+impl Recording<'_> {
+    /// Writes the session: the static transform and the ground-truth boxes, then every
+    /// event of the timeline in order, a frame rendered at each stop.
+    fn write_session(
+        &self,
+        out: &Path,
+        events: &[Event],
+        progress: &mut dyn FnMut(usize, usize),
+        total_frames: usize,
+    ) -> Result<RecordStats, SimError> {
+        let mount = base_from_optical(self.scene);
+        let mut sink = Sink {
+            topics: Topics::default(),
+            writer: SessionWriter::create(out)?,
+            messages: 0,
+        };
+        sink.write_statics(self.scene, &mount)?;
+        let mut camera_rng = Rng::new(self.opts.seed ^ CAMERA_STREAM);
+        let mut frames = 0usize;
+        for ev in events {
+            match ev {
+                Event::CmdVel {
+                    stamp_ns,
+                    linear_m_s,
+                    angular_rad_s,
+                } => sink.write_cmd_vel(*stamp_ns, *linear_m_s, *angular_rad_s)?,
+                Event::Pose {
+                    stamp_ns,
+                    nominal,
+                    truth,
+                    linear_m_s,
+                    angular_rad_s,
+                } => sink.write_poses(*stamp_ns, nominal, truth, *linear_m_s, *angular_rad_s)?,
+                Event::Frame {
+                    stamp_ns,
+                    index,
+                    background,
+                    nominal,
+                    truth,
+                } => {
+                    sink.write_poses(*stamp_ns, nominal, truth, 0.0, 0.0)?;
+                    let jitter = frame_jitter(&mut camera_rng);
+                    let shot = Shot {
+                        index: *index,
+                        stamp_ns: *stamp_ns,
+                        background: *background,
+                        odom_from_optical: iso_from_pose2(truth) * mount,
+                    };
+                    self.write_frame(&mut sink, &shot, &jitter)?;
+                    frames += 1;
+                    progress(frames, total_frames);
+                }
+            }
+        }
+        let path = sink.writer.finish()?;
+        Ok(RecordStats {
+            path,
+            frames,
+            messages: sink.messages,
+        })
+    }
+
+    /// Renders one frame and its labels and writes them (and dumps them when asked to).
+    fn write_frame(
+        &self,
+        sink: &mut Sink,
+        shot: &Shot,
+        jitter: &FrameJitter,
+    ) -> Result<(), SimError> {
+        let renderer = if shot.background {
+            self.background
+        } else {
+            self.full
+        };
+        let rendered = renderer.render(&shot.odom_from_optical, jitter);
+        let png = encode_png(rendered.width, rendered.height, &rendered.rgb).map_err(|what| {
+            SimError::Encode {
+                index: shot.index,
+                stamp_ns: shot.stamp_ns,
+                what,
+            }
+        })?;
+        let header = Header::new(shot.stamp_ns, CAMERA_FRAME);
+        let labels = self.labels(&rendered, renderer, &header);
+        if let Some(dir) = &self.opts.dump_frames {
+            dump_frame(dir, shot.index, &rendered, &png, &labels)?;
+        }
+        sink.write_frame(&header, png, self.full.camera(), &labels)
+    }
+
+    /// The labels of a rendered frame: the target's on a train session, every object's on
+    /// a tour.
+    fn labels(
+        &self,
+        rendered: &Rendered,
+        renderer: &Renderer,
+        header: &Header,
+    ) -> Vec<ObjectLabel> {
+        let target = &self.scene.target;
+        match self.opts.kind {
+            Kind::Train => vec![ObjectLabel {
+                header: header.clone(),
+                object: target.clone(),
+                regions: label_regions(rendered, renderer, target),
+            }],
+            Kind::Tour => self
+                .object_names
+                .iter()
+                .map(|o| ObjectLabel {
+                    header: header.clone(),
+                    object: o.clone(),
+                    regions: label_regions(rendered, renderer, o),
+                })
+                .collect(),
+        }
+    }
+}
+
+impl Sink {
+    /// Writes what holds for the whole session: the camera mount on /tf_static and the
+    /// ground-truth boxes.
+    fn write_statics(&mut self, scene: &Scene, mount: &Iso3) -> Result<(), SimError> {
+        let tf = TfMessage {
+            transforms: vec![TransformStamped {
+                header: Header::new(START_NS, BASE_FRAME),
+                child_frame_id: CAMERA_FRAME.into(),
+                translation: [
+                    mount.translation.x,
+                    mount.translation.y,
+                    mount.translation.z,
+                ],
+                rotation_xyzw: pose_from_iso(mount).orientation_xyzw,
+            }],
+        };
+        self.writer.write(&self.topics.tf_static, START_NS, &tf)?;
+        let boxes = ground_truth_boxes(scene);
+        let gt = GroundTruth {
+            header: Header::new(START_NS, ODOM_FRAME),
+            object: boxes.iter().map(|b| b.0.clone()).collect(),
+            box_center: boxes.iter().map(|b| pose_from_iso(&b.1)).collect(),
+            box_size: boxes.iter().map(|b| b.2).collect(),
+        };
+        self.writer
+            .write(&self.topics.ground_truth_objects, START_NS, &gt)?;
+        self.messages += 2;
+        Ok(())
+    }
+
+    /// Writes a /cmd_vel command.
+    fn write_cmd_vel(
+        &mut self,
+        stamp_ns: i64,
+        linear_m_s: f64,
+        angular_rad_s: f64,
+    ) -> Result<(), SimError> {
+        let msg = TwistStamped {
+            header: Header::new(stamp_ns, BASE_FRAME),
+            twist: Twist {
+                linear: [linear_m_s, 0.0, 0.0],
+                angular: [0.0, 0.0, angular_rad_s],
+            },
+        };
+        self.writer.write(&self.topics.cmd_vel, stamp_ns, &msg)?;
+        self.messages += 1;
+        Ok(())
+    }
+
+    /// Writes the odometry (nominal) pose with its twist, and the true pose.
+    fn write_poses(
+        &mut self,
+        stamp_ns: i64,
+        nominal: &Pose2,
+        truth: &Pose2,
+        linear_m_s: f64,
+        angular_rad_s: f64,
+    ) -> Result<(), SimError> {
+        let odom = Odometry {
+            header: Header::new(stamp_ns, ODOM_FRAME),
+            child_frame_id: BASE_FRAME.into(),
+            pose: pose3(nominal),
+            pose_covariance: [0.0; 36],
+            twist: Twist {
+                linear: [linear_m_s, 0.0, 0.0],
+                angular: [0.0, 0.0, angular_rad_s],
+            },
+            twist_covariance: [0.0; 36],
+        };
+        self.writer.write(&self.topics.odom, stamp_ns, &odom)?;
+        let gt = PoseStamped {
+            header: Header::new(stamp_ns, ODOM_FRAME),
+            pose: pose3(truth),
+        };
+        self.writer
+            .write(&self.topics.ground_truth_pose, stamp_ns, &gt)?;
+        self.messages += 2;
+        Ok(())
+    }
+
+    /// Writes a frame's image, its camera info and its labels.
+    fn write_frame(
+        &mut self,
+        header: &Header,
+        png: Vec<u8>,
+        camera: &Camera,
+        labels: &[ObjectLabel],
+    ) -> Result<(), SimError> {
+        let stamp_ns = header.stamp_ns;
+        self.writer.write(
+            &self.topics.compressed_image,
+            stamp_ns,
+            &CompressedImage {
+                header: header.clone(),
+                format: "png".into(),
+                data: png,
+            },
+        )?;
+        let info = CameraInfo::pinhole(
+            header.clone(),
+            camera.width,
+            camera.height,
+            camera.fx,
+            camera.fy,
+            camera.cx,
+            camera.cy,
+        );
+        self.writer
+            .write(&self.topics.camera_info, stamp_ns, &info)?;
+        for l in labels {
+            self.writer.write(&self.topics.labels, stamp_ns, l)?;
+        }
+        self.messages += 2 + labels.len();
+        Ok(())
+    }
 }
 
 fn dump_frame(

@@ -10,7 +10,7 @@
 use nalgebra::{Point3, Vector3};
 use rayon::prelude::*;
 
-use super::scene::{Material, Scene, Shape, Texture};
+use super::scene::{Material, Primitive, Scene, Shape, Texture};
 use crate::types::geometry::{Camera, Iso3};
 
 /// Rays start this far off a surface so they do not hit it again.
@@ -144,61 +144,12 @@ impl Renderer {
             if exclude_object.is_some() && p.object.as_deref() == exclude_object {
                 continue;
             }
-            let id = match &p.object {
-                Some(o) => {
-                    let inst = Instance {
-                        object: o.clone(),
-                        instance: p.instance,
-                    };
-                    let idx = match instances.iter().position(|x| *x == inst) {
-                        Some(idx) => idx,
-                        None => {
-                            instances.push(inst);
-                            instances.len() - 1
-                        }
-                    };
-                    u16::try_from(idx + 1).unwrap_or(u16::MAX)
-                }
-                None => 0,
-            };
-            let key = match (&p.object, &p.group) {
-                (Some(o), _) => format!("object {o} {}", p.instance),
-                (None, Some(g)) => format!("group {g}"),
-                (None, None) => format!("primitive {i}"),
-            };
-            let prim = match p.shape {
-                Shape::Box {
-                    center_m,
-                    size_m,
-                    yaw_deg,
-                } => {
-                    let yaw = yaw_deg.to_radians();
-                    Prim::Box {
-                        center: v3(center_m),
-                        half: v3(size_m) * 0.5,
-                        cos_yaw: yaw.cos(),
-                        sin_yaw: yaw.sin(),
-                    }
-                }
-                Shape::Cylinder {
-                    base_center_m,
-                    radius_m,
-                    height_m,
-                } => Prim::Cylinder {
-                    base: v3(base_center_m),
-                    radius: radius_m,
-                    height: height_m,
-                },
-                Shape::Sphere { center_m, radius_m } => Prim::Sphere {
-                    center: v3(center_m),
-                    radius: radius_m,
-                },
-            };
             let item = Item {
-                prim,
+                prim: prim_of(&p.shape),
                 surface: surface(&p.material),
-                id,
+                id: instance_id(&mut instances, p),
             };
+            let key = group_key(p, i);
             match keys.iter().position(|k| *k == key) {
                 Some(g) => groups[g].push(item),
                 None => {
@@ -207,31 +158,10 @@ impl Renderer {
                 }
             }
         }
-        let groups = groups
-            .into_iter()
-            .map(|items| {
-                let (lo, hi) = items.iter().fold(
-                    (
-                        Vector3::repeat(f64::INFINITY),
-                        Vector3::repeat(f64::NEG_INFINITY),
-                    ),
-                    |(lo, hi), it| {
-                        let (a, b) = prim_aabb(&it.prim);
-                        (lo.inf(&a), hi.sup(&b))
-                    },
-                );
-                let center = (lo + hi) * 0.5;
-                Group {
-                    center,
-                    radius: (hi - lo).norm() * 0.5 + 1e-6,
-                    items,
-                }
-            })
-            .collect();
         let r = &scene.room;
         Self {
             camera,
-            groups,
+            groups: groups.into_iter().map(bounded_group).collect(),
             room_half: Vector3::new(r.size_m[0] * 0.5, r.size_m[1] * 0.5, 0.0),
             room_height: r.size_m[2],
             floor: surface(&r.floor),
@@ -391,6 +321,88 @@ impl Renderer {
     }
 }
 
+/// The object-id of primitive `p` (0 when it belongs to no named object), adding its
+/// instance to `instances` when it is the first of it.
+fn instance_id(instances: &mut Vec<Instance>, p: &Primitive) -> u16 {
+    let Some(o) = &p.object else {
+        return 0;
+    };
+    let inst = Instance {
+        object: o.clone(),
+        instance: p.instance,
+    };
+    let idx = match instances.iter().position(|x| *x == inst) {
+        Some(idx) => idx,
+        None => {
+            instances.push(inst);
+            instances.len() - 1
+        }
+    };
+    u16::try_from(idx + 1).unwrap_or(u16::MAX)
+}
+
+/// The culling group of primitive `i`: its object instance, else its named group, else
+/// its own.
+fn group_key(p: &Primitive, i: usize) -> String {
+    match (&p.object, &p.group) {
+        (Some(o), _) => format!("object {o} {}", p.instance),
+        (None, Some(g)) => format!("group {g}"),
+        (None, None) => format!("primitive {i}"),
+    }
+}
+
+/// A scene shape as the renderer's world-space primitive.
+fn prim_of(shape: &Shape) -> Prim {
+    match *shape {
+        Shape::Box {
+            center_m,
+            size_m,
+            yaw_deg,
+        } => {
+            let yaw = yaw_deg.to_radians();
+            Prim::Box {
+                center: v3(center_m),
+                half: v3(size_m) * 0.5,
+                cos_yaw: yaw.cos(),
+                sin_yaw: yaw.sin(),
+            }
+        }
+        Shape::Cylinder {
+            base_center_m,
+            radius_m,
+            height_m,
+        } => Prim::Cylinder {
+            base: v3(base_center_m),
+            radius: radius_m,
+            height: height_m,
+        },
+        Shape::Sphere { center_m, radius_m } => Prim::Sphere {
+            center: v3(center_m),
+            radius: radius_m,
+        },
+    }
+}
+
+/// A culling group of `items` with the bounding sphere of their bounding boxes.
+fn bounded_group(items: Vec<Item>) -> Group {
+    let (lo, hi) = items.iter().fold(
+        (
+            Vector3::repeat(f64::INFINITY),
+            Vector3::repeat(f64::NEG_INFINITY),
+        ),
+        |(lo, hi), it| {
+            let (a, b) = prim_aabb(&it.prim);
+            (lo.inf(&a), hi.sup(&b))
+        },
+    );
+    let center = (lo + hi) * 0.5;
+    Group {
+        center,
+        radius: (hi - lo).norm() * 0.5 + 1e-6,
+        items,
+    }
+}
+
 fn prim_aabb(p: &Prim) -> (Vector3<f64>, Vector3<f64>) {
     match *p {
         Prim::Box {
@@ -487,132 +499,161 @@ fn sphere_may_hit(
     tc + r > 0.0 && tc - r < t_max
 }
 
+/// A ray as the intersection tests take it: origin, unit direction, and the distance
+/// beyond which hits do not count.
+#[derive(Clone, Copy)]
+struct Ray<'a> {
+    o: &'a Vector3<f64>,
+    d: &'a Vector3<f64>,
+    t_max: f64,
+}
+
+/// (t, outward normal, point in the primitive's own frame) of a ray hit.
+type Crossing = (f64, Vector3<f64>, Vector3<f64>);
+
 /// Nearest intersection with t in (eps, t_max): (t, outward normal, local point).
 #[inline]
-fn intersect(
-    p: &Prim,
-    o: &Vector3<f64>,
-    d: &Vector3<f64>,
-    t_max: f64,
-) -> Option<(f64, Vector3<f64>, Vector3<f64>)> {
+fn intersect(p: &Prim, o: &Vector3<f64>, d: &Vector3<f64>, t_max: f64) -> Option<Crossing> {
+    let ray = Ray { o, d, t_max };
     match *p {
         Prim::Box {
             center,
             half,
             cos_yaw,
             sin_yaw,
-        } => {
-            let rel = o - center;
-            // local-from-world: rotate by -yaw
-            let lo = Vector3::new(
-                cos_yaw * rel.x + sin_yaw * rel.y,
-                -sin_yaw * rel.x + cos_yaw * rel.y,
-                rel.z,
-            );
-            let ld = Vector3::new(
-                cos_yaw * d.x + sin_yaw * d.y,
-                -sin_yaw * d.x + cos_yaw * d.y,
-                d.z,
-            );
-            let mut t_near = f64::NEG_INFINITY;
-            let mut t_far = f64::INFINITY;
-            let mut axis_near = 0;
-            let mut sign_near = 0.0;
-            for a in 0..3 {
-                if ld[a].abs() < 1e-15 {
-                    if lo[a].abs() > half[a] {
-                        return None;
-                    }
-                    continue;
-                }
-                let inv = 1.0 / ld[a];
-                let t1 = (-half[a] - lo[a]) * inv;
-                let t2 = (half[a] - lo[a]) * inv;
-                let (ta, tb, s) = if t1 < t2 {
-                    (t1, t2, -1.0)
-                } else {
-                    (t2, t1, 1.0)
-                };
-                if ta > t_near {
-                    t_near = ta;
-                    axis_near = a;
-                    sign_near = s;
-                }
-                t_far = t_far.min(tb);
-            }
-            if t_near > t_far || t_near <= SURFACE_EPS_M || t_near >= t_max {
-                return None;
-            }
-            let mut ln = Vector3::zeros();
-            ln[axis_near] = sign_near;
-            let normal = Vector3::new(
-                cos_yaw * ln.x - sin_yaw * ln.y,
-                sin_yaw * ln.x + cos_yaw * ln.y,
-                ln.z,
-            );
-            Some((t_near, normal, lo + ld * t_near))
-        }
-        Prim::Sphere { center, radius } => {
-            let oc = o - center;
-            let b = oc.dot(d);
-            let c = oc.norm_squared() - radius * radius;
-            let disc = b * b - c;
-            if disc < 0.0 {
-                return None;
-            }
-            let sq = disc.sqrt();
-            let t = if -b - sq > SURFACE_EPS_M {
-                -b - sq
-            } else {
-                -b + sq
-            };
-            if t <= SURFACE_EPS_M || t >= t_max {
-                return None;
-            }
-            let local = oc + d * t;
-            Some((t, local / radius, local))
-        }
+        } => intersect_box(&center, &half, (cos_yaw, sin_yaw), ray),
+        Prim::Sphere { center, radius } => intersect_sphere(&center, radius, ray),
         Prim::Cylinder {
             base,
             radius,
             height,
-        } => {
-            let rel = o - base;
-            let mut best: Option<(f64, Vector3<f64>)> = None;
-            // Side: |(rel + d t).xy| = radius.
-            let a = d.x * d.x + d.y * d.y;
-            if a > 1e-15 {
-                let b = rel.x * d.x + rel.y * d.y;
-                let c = rel.x * rel.x + rel.y * rel.y - radius * radius;
-                let disc = b * b - a * c;
-                if disc >= 0.0 {
-                    let sq = disc.sqrt();
-                    for t in [(-b - sq) / a, (-b + sq) / a] {
-                        let z = rel.z + d.z * t;
-                        if t > SURFACE_EPS_M && t < t_max && (0.0..=height).contains(&z) {
-                            let q = rel + d * t;
-                            best = Some((t, Vector3::new(q.x, q.y, 0.0) / radius));
-                            break;
-                        }
-                    }
+        } => intersect_cylinder(&base, radius, height, ray),
+    }
+}
+
+/// Nearest hit of a box of half extents `half` at `center`, yawed by the angle whose
+/// (cosine, sine) is `yaw`.
+#[inline]
+fn intersect_box(
+    center: &Vector3<f64>,
+    half: &Vector3<f64>,
+    (cos_yaw, sin_yaw): (f64, f64),
+    ray: Ray,
+) -> Option<Crossing> {
+    let Ray { o, d, t_max } = ray;
+    let rel = o - center;
+    // local-from-world: rotate by -yaw
+    let lo = Vector3::new(
+        cos_yaw * rel.x + sin_yaw * rel.y,
+        -sin_yaw * rel.x + cos_yaw * rel.y,
+        rel.z,
+    );
+    let ld = Vector3::new(
+        cos_yaw * d.x + sin_yaw * d.y,
+        -sin_yaw * d.x + cos_yaw * d.y,
+        d.z,
+    );
+    let mut t_near = f64::NEG_INFINITY;
+    let mut t_far = f64::INFINITY;
+    let mut axis_near = 0;
+    let mut sign_near = 0.0;
+    for a in 0..3 {
+        if ld[a].abs() < 1e-15 {
+            if lo[a].abs() > half[a] {
+                return None;
+            }
+            continue;
+        }
+        let inv = 1.0 / ld[a];
+        let t1 = (-half[a] - lo[a]) * inv;
+        let t2 = (half[a] - lo[a]) * inv;
+        let (ta, tb, s) = if t1 < t2 {
+            (t1, t2, -1.0)
+        } else {
+            (t2, t1, 1.0)
+        };
+        if ta > t_near {
+            t_near = ta;
+            axis_near = a;
+            sign_near = s;
+        }
+        t_far = t_far.min(tb);
+    }
+    if t_near > t_far || t_near <= SURFACE_EPS_M || t_near >= t_max {
+        return None;
+    }
+    let mut ln = Vector3::zeros();
+    ln[axis_near] = sign_near;
+    let normal = Vector3::new(
+        cos_yaw * ln.x - sin_yaw * ln.y,
+        sin_yaw * ln.x + cos_yaw * ln.y,
+        ln.z,
+    );
+    Some((t_near, normal, lo + ld * t_near))
+}
+
+/// Nearest hit of a sphere (from outside, or from inside on its far side).
+#[inline]
+fn intersect_sphere(center: &Vector3<f64>, radius: f64, ray: Ray) -> Option<Crossing> {
+    let Ray { o, d, t_max } = ray;
+    let oc = o - center;
+    let b = oc.dot(d);
+    let c = oc.norm_squared() - radius * radius;
+    let disc = b * b - c;
+    if disc < 0.0 {
+        return None;
+    }
+    let sq = disc.sqrt();
+    let t = if -b - sq > SURFACE_EPS_M {
+        -b - sq
+    } else {
+        -b + sq
+    };
+    if t <= SURFACE_EPS_M || t >= t_max {
+        return None;
+    }
+    let local = oc + d * t;
+    Some((t, local / radius, local))
+}
+
+/// Nearest hit of a vertical cylinder standing on `base`: its side or one of its caps.
+#[inline]
+fn intersect_cylinder(base: &Vector3<f64>, radius: f64, height: f64, ray: Ray) -> Option<Crossing> {
+    let Ray { o, d, t_max } = ray;
+    let rel = o - base;
+    let mut best: Option<(f64, Vector3<f64>)> = None;
+    // Side: |(rel + d t).xy| = radius.
+    let a = d.x * d.x + d.y * d.y;
+    if a > 1e-15 {
+        let b = rel.x * d.x + rel.y * d.y;
+        let c = rel.x * rel.x + rel.y * rel.y - radius * radius;
+        let disc = b * b - a * c;
+        if disc >= 0.0 {
+            let sq = disc.sqrt();
+            for t in [(-b - sq) / a, (-b + sq) / a] {
+                let z = rel.z + d.z * t;
+                if t > SURFACE_EPS_M && t < t_max && (0.0..=height).contains(&z) {
+                    let q = rel + d * t;
+                    best = Some((t, Vector3::new(q.x, q.y, 0.0) / radius));
+                    break;
                 }
             }
-            // Caps.
-            if d.z.abs() > 1e-15 {
-                for (zc, nz) in [(0.0, -1.0), (height, 1.0)] {
-                    let t = (zc - rel.z) / d.z;
-                    let limit = best.map_or(t_max, |(bt, _)| bt);
-                    if t > SURFACE_EPS_M && t < limit {
-                        let q = rel + d * t;
-                        if q.x * q.x + q.y * q.y <= radius * radius {
-                            best = Some((t, Vector3::new(0.0, 0.0, nz)));
-                        }
-                    }
-                }
-            }
-            best.map(|(t, n)| (t, n, rel + d * t))
         }
     }
+    // Caps.
+    if d.z.abs() > 1e-15 {
+        for (zc, nz) in [(0.0, -1.0), (height, 1.0)] {
+            let t = (zc - rel.z) / d.z;
+            let limit = best.map_or(t_max, |(bt, _)| bt);
+            if t > SURFACE_EPS_M && t < limit {
+                let q = rel + d * t;
+                if q.x * q.x + q.y * q.y <= radius * radius {
+                    best = Some((t, Vector3::new(0.0, 0.0, nz)));
+                }
+            }
+        }
+    }
+    best.map(|(t, n)| (t, n, rel + d * t))
 }
 
 /// Brightness factor of a texture at a local point (1 = plain albedo).

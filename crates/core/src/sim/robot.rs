@@ -92,10 +92,53 @@ impl Event {
     }
 }
 
+/// One motion command: the robot either rotates in place or drives straight.
 #[derive(Debug, Clone, Copy)]
 enum Command {
     Rotate { angle_rad: f64 },
     Drive { distance_m: f64 },
+}
+
+/// The robot's speeds and how far the executed ones stray from them.
+#[derive(Debug, Clone, Copy)]
+struct Motion {
+    drive_speed_m_s: f64,
+    turn_speed_rad_s: f64,
+    noise: SpeedNoise,
+}
+
+/// A planar twist: forward and yaw speed.
+#[derive(Debug, Clone, Copy)]
+struct Twist2 {
+    linear_m_s: f64,
+    angular_rad_s: f64,
+}
+
+impl Twist2 {
+    const ZERO: Twist2 = Twist2 {
+        linear_m_s: 0.0,
+        angular_rad_s: 0.0,
+    };
+
+    /// Where `p` gets to after `dt_ns` of this twist scaled by `scale` (the robot only
+    /// rotates or drives straight, so one step is exact).
+    fn advance(&self, p: Pose2, dt_ns: i64, scale: f64) -> Pose2 {
+        let (lin, ang) = (self.linear_m_s, self.angular_rad_s);
+        let dt = dt_ns as f64 * 1e-9;
+        Pose2 {
+            x_m: p.x_m + lin * scale * dt * p.yaw_rad.cos(),
+            y_m: p.y_m + lin * scale * dt * p.yaw_rad.sin(),
+            yaw_rad: wrap_angle(p.yaw_rad + ang * scale * dt),
+        }
+    }
+}
+
+/// The events so far, and the robot's poses (odometry and truth) and the time at their end.
+struct Timeline {
+    events: Vec<Event>,
+    nominal: Pose2,
+    truth: Pose2,
+    t_ns: i64,
 }
 
 /// Simulates the robot from `stops[0]` (where it starts, odometry = truth) through every
@@ -108,127 +151,143 @@ pub fn simulate(
     noise: SpeedNoise,
     rng: &mut Rng,
 ) -> Vec<Event> {
-    let mut events = Vec::new();
     let Some(first) = stops.first() else {
-        return events;
+        return Vec::new();
     };
-    let mut nominal = first.pose;
-    let mut truth = first.pose;
-    let mut t = start_ns;
-    events.push(Event::Pose {
-        stamp_ns: t,
-        nominal,
-        truth,
-        linear_m_s: 0.0,
-        angular_rad_s: 0.0,
-    });
-    t += 2 * FRAME_GAP_NS;
+    let motion = Motion {
+        drive_speed_m_s,
+        turn_speed_rad_s,
+        noise,
+    };
+    let mut timeline = Timeline {
+        events: Vec::new(),
+        nominal: first.pose,
+        truth: first.pose,
+        t_ns: start_ns,
+    };
+    timeline.push_pose(Twist2::ZERO);
+    timeline.t_ns += 2 * FRAME_GAP_NS;
     for (index, stop) in stops.iter().enumerate() {
         if index > 0 {
-            // Plan from where odometry believes the robot is: rotate, drive, rotate.
-            let dx = stop.pose.x_m - nominal.x_m;
-            let dy = stop.pose.y_m - nominal.y_m;
-            let dist = dx.hypot(dy);
-            let mut commands = Vec::new();
-            let mut heading = nominal.yaw_rad;
-            if dist > 1e-3 {
-                let bearing = dy.atan2(dx);
-                commands.push(Command::Rotate {
-                    angle_rad: wrap_angle(bearing - heading),
-                });
-                commands.push(Command::Drive { distance_m: dist });
-                heading = bearing;
+            for c in plan(&timeline.nominal, &stop.pose) {
+                timeline.execute(c, &motion, rng);
             }
-            commands.push(Command::Rotate {
-                angle_rad: wrap_angle(stop.pose.yaw_rad - heading),
-            });
-            for c in commands {
-                let (amount, speed, sigma, bias) = match c {
-                    Command::Rotate { angle_rad } => (
-                        angle_rad,
-                        turn_speed_rad_s,
-                        noise.rot_rel_sigma,
-                        noise.rot_rel_bias,
-                    ),
-                    Command::Drive { distance_m } => {
-                        (distance_m, drive_speed_m_s, noise.trans_rel_sigma, 0.0)
-                    }
-                };
-                let duration_ms = (amount.abs() / speed * 1000.0).ceil();
-                if duration_ms < 1.0 {
-                    continue;
-                }
-                let duration_ns = duration_ms as i64 * 1_000_000;
-                // Nominal speed reaches the planned amount exactly in whole milliseconds.
-                let nominal_speed = amount / (duration_ms / 1000.0);
-                // Bias 0 leaves the factor, and so every shipped session, as it was.
-                let factor = 1.0 + sigma * rng.normal() + bias;
-                let (lin, ang) = match c {
-                    Command::Rotate { .. } => (0.0, nominal_speed),
-                    Command::Drive { .. } => (nominal_speed, 0.0),
-                };
-                let (n0, t0, start) = (nominal, truth, t);
-                events.push(Event::CmdVel {
-                    stamp_ns: start,
-                    linear_m_s: lin,
-                    angular_rad_s: ang,
-                });
-                events.push(Event::Pose {
-                    stamp_ns: start,
-                    nominal: n0,
-                    truth: t0,
-                    linear_m_s: lin,
-                    angular_rad_s: ang,
-                });
-                let at = |dt_ns: i64, p: Pose2, scale: f64| -> Pose2 {
-                    let dt = dt_ns as f64 * 1e-9;
-                    Pose2 {
-                        x_m: p.x_m + lin * scale * dt * p.yaw_rad.cos(),
-                        y_m: p.y_m + lin * scale * dt * p.yaw_rad.sin(),
-                        yaw_rad: wrap_angle(p.yaw_rad + ang * scale * dt),
-                    }
-                };
-                let mut k = 1;
-                while k * ODOM_PERIOD_NS < duration_ns {
-                    let dt = k * ODOM_PERIOD_NS;
-                    events.push(Event::Pose {
-                        stamp_ns: start + dt,
-                        nominal: at(dt, n0, 1.0),
-                        truth: at(dt, t0, factor),
-                        linear_m_s: lin,
-                        angular_rad_s: ang,
-                    });
-                    k += 1;
-                }
-                nominal = at(duration_ns, n0, 1.0);
-                truth = at(duration_ns, t0, factor);
-                t = start + duration_ns;
-                events.push(Event::CmdVel {
-                    stamp_ns: t,
-                    linear_m_s: 0.0,
-                    angular_rad_s: 0.0,
-                });
-                events.push(Event::Pose {
-                    stamp_ns: t,
-                    nominal,
-                    truth,
-                    linear_m_s: 0.0,
-                    angular_rad_s: 0.0,
-                });
-                t += SETTLE_NS;
-            }
-            t += FRAME_GAP_NS - SETTLE_NS;
+            timeline.t_ns += FRAME_GAP_NS - SETTLE_NS;
         }
-        events.push(Event::Frame {
-            stamp_ns: t,
+        timeline.events.push(Event::Frame {
+            stamp_ns: timeline.t_ns,
             index,
             background: stop.background,
-            nominal,
-            truth,
+            nominal: timeline.nominal,
+            truth: timeline.truth,
         });
-        t += FRAME_GAP_NS;
+        timeline.t_ns += FRAME_GAP_NS;
     }
-    events
+    timeline.events
+}
+
+/// The commands from `from` (where odometry believes the robot is) to `to`: rotate to face
+/// it and drive there (unless already there), then rotate to its yaw.
+fn plan(from: &Pose2, to: &Pose2) -> Vec<Command> {
+    let dx = to.x_m - from.x_m;
+    let dy = to.y_m - from.y_m;
+    let dist = dx.hypot(dy);
+    let mut commands = Vec::new();
+    let mut heading = from.yaw_rad;
+    if dist > 1e-3 {
+        let bearing = dy.atan2(dx);
+        commands.push(Command::Rotate {
+            angle_rad: wrap_angle(bearing - heading),
+        });
+        commands.push(Command::Drive { distance_m: dist });
+        heading = bearing;
+    }
+    commands.push(Command::Rotate {
+        angle_rad: wrap_angle(to.yaw_rad - heading),
+    });
+    commands
+}
+
+impl Timeline {
+    /// Appends one command: its start, odometry while it runs, its end and the pause after.
+    /// A command shorter than a millisecond is skipped (and takes no random draw).
+    fn execute(&mut self, c: Command, motion: &Motion, rng: &mut Rng) {
+        let noise = motion.noise;
+        let (amount, speed, sigma, bias) = match c {
+            Command::Rotate { angle_rad } => (
+                angle_rad,
+                motion.turn_speed_rad_s,
+                noise.rot_rel_sigma,
+                noise.rot_rel_bias,
+            ),
+            Command::Drive { distance_m } => (
+                distance_m,
+                motion.drive_speed_m_s,
+                noise.trans_rel_sigma,
+                0.0,
+            ),
+        };
+        let duration_ms = (amount.abs() / speed * 1000.0).ceil();
+        if duration_ms < 1.0 {
+            return;
+        }
+        let duration_ns = duration_ms as i64 * 1_000_000;
+        // Nominal speed reaches the planned amount exactly in whole milliseconds.
+        let nominal_speed = amount / (duration_ms / 1000.0);
+        // Bias 0 leaves the factor, and so every shipped session, as it was.
+        let factor = 1.0 + sigma * rng.normal() + bias;
+        let twist = match c {
+            Command::Rotate { .. } => Twist2 {
+                linear_m_s: 0.0,
+                angular_rad_s: nominal_speed,
+            },
+            Command::Drive { .. } => Twist2 {
+                linear_m_s: nominal_speed,
+                angular_rad_s: 0.0,
+            },
+        };
+        let (n0, t0, start) = (self.nominal, self.truth, self.t_ns);
+        self.push_cmd_vel(twist);
+        self.push_pose(twist);
+        let mut k = 1;
+        while k * ODOM_PERIOD_NS < duration_ns {
+            let dt = k * ODOM_PERIOD_NS;
+            self.events.push(Event::Pose {
+                stamp_ns: start + dt,
+                nominal: twist.advance(n0, dt, 1.0),
+                truth: twist.advance(t0, dt, factor),
+                linear_m_s: twist.linear_m_s,
+                angular_rad_s: twist.angular_rad_s,
+            });
+            k += 1;
+        }
+        self.nominal = twist.advance(n0, duration_ns, 1.0);
+        self.truth = twist.advance(t0, duration_ns, factor);
+        self.t_ns = start + duration_ns;
+        self.push_cmd_vel(Twist2::ZERO);
+        self.push_pose(Twist2::ZERO);
+        self.t_ns += SETTLE_NS;
+    }
+
+    /// Appends a /cmd_vel of `twist` at the current time.
+    fn push_cmd_vel(&mut self, twist: Twist2) {
+        self.events.push(Event::CmdVel {
+            stamp_ns: self.t_ns,
+            linear_m_s: twist.linear_m_s,
+            angular_rad_s: twist.angular_rad_s,
+        });
+    }
+
+    /// Appends the current poses, moving at `twist`.
+    fn push_pose(&mut self, twist: Twist2) {
+        self.events.push(Event::Pose {
+            stamp_ns: self.t_ns,
+            nominal: self.nominal,
+            truth: self.truth,
+            linear_m_s: twist.linear_m_s,
+            angular_rad_s: twist.angular_rad_s,
+        });
+    }
 }
 
 #[cfg(test)]

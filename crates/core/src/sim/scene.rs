@@ -198,8 +198,18 @@ impl Scene {
 
     /// Checks every number the renderer and planner rely on; the message names the field.
     pub fn validate(&self) -> Result<(), String> {
-        let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());
-        let positive = |v: &[f64]| v.iter().all(|x| x.is_finite() && *x > 0.0);
+        self.validate_room()?;
+        self.validate_light()?;
+        self.validate_camera()?;
+        if !positive(&[self.robot.drive_speed_m_s, self.robot.turn_speed_rad_s]) {
+            return Err(format!("robot speeds {:?} must be positive", self.robot));
+        }
+        self.validate_primitives()?;
+        self.validate_path()
+    }
+
+    /// Checks the room's size and every material's colour and texture (the primitives' too).
+    fn validate_room(&self) -> Result<(), String> {
         if !positive(&self.room.size_m) {
             return Err(format!(
                 "room.size_m {:?} must be positive",
@@ -238,6 +248,11 @@ impl Scene {
                 ));
             }
         }
+        Ok(())
+    }
+
+    /// Checks the light's direction and radiance.
+    fn validate_light(&self) -> Result<(), String> {
         let l = &self.light;
         let dir_len = l.direction.iter().map(|x| x * x).sum::<f64>().sqrt();
         let radiance_ok = l.intensity.is_finite()
@@ -249,6 +264,11 @@ impl Scene {
                 "light {l:?} needs a non-zero direction and non-negative radiance"
             ));
         }
+        Ok(())
+    }
+
+    /// Checks the camera's image size, field of view and mount.
+    fn validate_camera(&self) -> Result<(), String> {
         let c = &self.camera;
         if c.width == 0 || c.height == 0 || c.width > 4096 || c.height > 4096 {
             return Err(format!(
@@ -266,9 +286,11 @@ impl Scene {
                 c.hfov_deg
             ));
         }
-        if !positive(&[self.robot.drive_speed_m_s, self.robot.turn_speed_rad_s]) {
-            return Err(format!("robot speeds {:?} must be positive", self.robot));
-        }
+        Ok(())
+    }
+
+    /// Checks every primitive's shape and object name, and that the target has a primitive.
+    fn validate_primitives(&self) -> Result<(), String> {
         for (i, p) in self.primitives.iter().enumerate() {
             let ok = match p.shape {
                 Shape::Box {
@@ -300,6 +322,11 @@ impl Scene {
         {
             return Err(format!("target object {:?} has no primitive", self.target));
         }
+        Ok(())
+    }
+
+    /// Checks the tour circle, the train views and the background stops.
+    fn validate_path(&self) -> Result<(), String> {
         let path = &self.path;
         if !finite(&path.target_m)
             || !positive(&[path.tour_radius_m])
@@ -327,6 +354,16 @@ impl Scene {
         }
         Ok(())
     }
+}
+
+/// Every value is finite.
+fn finite(v: &[f64]) -> bool {
+    v.iter().all(|x| x.is_finite())
+}
+
+/// Every value is finite and above zero.
+fn positive(v: &[f64]) -> bool {
+    v.iter().all(|x| x.is_finite() && *x > 0.0)
 }
 
 #[cfg(test)]
