@@ -5,6 +5,9 @@
 //! target/pyenv exists) as the peer for a ratio. `OBJLOC_BENCH_SCALING=1` adds grids up to
 //! 400^3.
 
+// A benchmark may unwrap and expect: a failure ends the run with its message.
+#![allow(clippy::unwrap_used, clippy::expect_used, missing_docs)]
+
 use std::hint::black_box;
 use std::time::Instant;
 
@@ -46,10 +49,10 @@ fn setup(
     (grid, odom_from_camera.inverse(), cam, ev)
 }
 
-/// The whole chair tour: replay without Rerun, and with the Rerun stream saved to an .rrd
-/// (the cost of streaming), medians of 5.
+/// The whole chair tour: replay without Rerun (in this process), and the binary's `objloc
+/// fuse` as a process with `--no-rerun` and with the Rerun stream saved to an .rrd (the cost of
+/// streaming), medians of 5.
 fn chair_tour() {
-    use objloc::viz::{self, VizArgs};
     use objloc_core::fuse::replay::{FuseOptions, replay};
     use objloc_core::io::session::{SessionReader, Topics};
     use objloc_core::learn::dataset::load_session;
@@ -80,27 +83,39 @@ fn chair_tour() {
     let unrefined = median_ms(5, || {
         black_box(replay(&reader, &model, &paper, &mut []).unwrap());
     });
+    println!(
+        "chair tour (8 frames, default options): replay {plain:.1} ms ({unrefined:.1} ms with --no-refine-poses: {:.2}x)",
+        plain / unrefined,
+    );
+    // The Rerun observers live in the binary: time `objloc fuse` as a process, the same model
+    // and session, without and with the recording (process start and loading included).
     let dir = std::env::temp_dir().join(format!("objloc-bench-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let model_path = dir.join("chair.json");
+    model.save(&model_path).unwrap();
     let rrd = dir.join("tour.rrd");
-    let streamed = median_ms(5, || {
-        let stream = viz::open_stream(
-            &VizArgs::headless(),
-            &rrd,
-            "bench",
-            Some(viz::fuse_blueprint()),
-        )
-        .unwrap();
-        let mut obs = viz::fuse::FuseViz::new(stream.rec.clone(), viz::fuse::VizOptions::default());
-        black_box(replay(&reader, &model, &options, &mut [&mut obs]).unwrap());
-        drop(obs);
-        stream.finish().unwrap();
-    });
+    let fuse = |rerun: &[&std::ffi::OsStr]| {
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_objloc"))
+            .arg("fuse")
+            .arg(root.join("recordings/chair-tour.mcap"))
+            .arg("--model")
+            .arg(&model_path)
+            .args(rerun)
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "objloc fuse: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    };
+    let quiet = median_ms(5, || fuse(&["--no-rerun".as_ref()]));
+    let streamed = median_ms(5, || fuse(&["--save".as_ref(), rrd.as_os_str()]));
     let size = std::fs::metadata(&rrd).map(|m| m.len()).unwrap_or(0);
     let _ = std::fs::remove_dir_all(&dir);
     println!(
-        "chair tour (8 frames, default options): replay {plain:.1} ms ({unrefined:.1} ms with --no-refine-poses: {:.2}x); with the Rerun stream to an .rrd {streamed:.1} ms ({:.2}x), .rrd {:.1} MB",
-        plain / unrefined,
-        streamed / plain,
+        "objloc fuse of the chair tour as a process: --no-rerun {quiet:.1} ms; with --save to an .rrd {streamed:.1} ms ({:.2}x), .rrd {:.1} MB",
+        streamed / quiet,
         size as f64 / 1e6
     );
     // Pose refinement against the plain replay of the same session (the drift tour).
@@ -207,7 +222,7 @@ fn main() {
         }
     } else {
         println!(
-            "(no target/pyenv: numpy peer skipped; `cargo test --release --test interop` creates it)"
+            "(no target/pyenv: numpy peer skipped; `cargo test --release --test it interop` creates it)"
         );
     }
 }

@@ -3,11 +3,15 @@
 //!
 //! `cargo bench --bench render [-- FRAMES_PER_BATCH BATCHES]`; RAYON_NUM_THREADS sets the cores.
 
+// A benchmark may unwrap and expect: a failure ends the run with its message.
+#![allow(clippy::unwrap_used, clippy::expect_used, missing_docs)]
+
 use std::time::Instant;
 
 use objloc_core::sim::{
-    FrameJitter, Kind, Renderer, SimOptions, builtin_scene, encode_png, iso_from_pose2, plan_stops,
+    FrameJitter, Kind, Renderer, SimOptions, builtin_scene, iso_from_pose2, plan_stops,
 };
+use objloc_core::types::image::encode_png;
 
 fn main() {
     let args: Vec<String> = std::env::args()

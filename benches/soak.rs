@@ -8,11 +8,16 @@
 //! Invariants: the session is the simulator's (seeded), so every run replays the same bytes;
 //! the timings are wall clock (this is a benchmark, not part of the replay path).
 
+// A benchmark may unwrap and expect: a failure ends the run with its message.
+#![allow(clippy::unwrap_used, clippy::expect_used, missing_docs)]
+
 use std::path::Path;
 use std::time::Instant;
 
 use objloc_core::fuse::grid::Grid;
-use objloc_core::fuse::replay::{FrameStep, FuseOptions, Observer, SessionData, replay};
+use objloc_core::fuse::replay::{
+    FrameStep, FuseOptions, Observer, ObserverError, SessionData, replay,
+};
 use objloc_core::io::session::{SessionReader, Topics};
 use objloc_core::learn::dataset::load_session;
 use objloc_core::learn::model::{TrainConfig, examples, fit_model};
@@ -45,7 +50,7 @@ impl Observer for RssProbe {
         _data: &SessionData,
         step: &FrameStep,
         _grid: &Grid,
-    ) -> anyhow::Result<()> {
+    ) -> Result<(), ObserverError> {
         let frames = step.index + 1;
         if frames.is_multiple_of(EVERY_FRAMES) {
             let (rss, hwm) = rss_mib();

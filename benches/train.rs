@@ -5,15 +5,18 @@
 //! Invariants: the synthetic frames are a fixed function of pixel coordinates, so every run
 //! times the same work.
 
+// A benchmark may unwrap and expect: a failure ends the run with its message.
+#![allow(clippy::unwrap_used, clippy::expect_used, missing_docs)]
+
 use std::path::Path;
 use std::time::{Duration, Instant};
 
 use objloc_core::io::msgs::RegionOfInterest;
 use objloc_core::io::session::Topics;
-use objloc_core::types::image::Rgb8;
 use objloc_core::learn::dataset::{LoadedSession, SessionFrame, load_session};
 use objloc_core::learn::features::FeatureKind;
 use objloc_core::learn::model::{TrainConfig, examples, fit_model};
+use objloc_core::types::image::Rgb8;
 
 const RUNS: usize = 15;
 

@@ -5,68 +5,10 @@
 //! Invariants: every test writes into its own temporary directory; models are trained by
 //! the binary itself from recordings/chair-train.mcap.
 
-mod common;
-
-use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
-
-use common::pyenv::{python, repo_dir, run_checked};
 use serde_json::Value;
 
-fn objloc(args: &[&str], envs: &[(&str, &str)]) -> Output {
-    let mut cmd = Command::new(env!("CARGO_BIN_EXE_objloc"));
-    cmd.current_dir(repo_dir()).args(args);
-    for (k, v) in envs {
-        cmd.env(k, v);
-    }
-    cmd.output().expect("run objloc")
-}
-
-fn ok(out: &Output) -> String {
-    assert!(
-        out.status.success(),
-        "exit {:?}\n--- stdout\n{}\n--- stderr\n{}",
-        out.status,
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8_lossy(&out.stdout).into_owned()
-}
-
-/// A failure: exit 1, one `error:` line on stderr, no panic.
-fn one_line_error(out: &Output) -> String {
-    let err = String::from_utf8_lossy(&out.stderr).into_owned();
-    assert_eq!(out.status.code(), Some(1), "stderr: {err}");
-    let lines: Vec<&str> = err.lines().filter(|l| !l.starts_with("warning:")).collect();
-    assert_eq!(lines.len(), 1, "not one line: {err}");
-    assert!(lines[0].starts_with("error: "), "{err}");
-    assert!(!err.contains("panicked"), "{err}");
-    lines[0].to_owned()
-}
-
-fn p(path: &Path) -> &str {
-    path.to_str().expect("utf-8 temp path")
-}
-
-fn train(dir: &Path) -> PathBuf {
-    let model = dir.join("chair.json");
-    ok(&objloc(
-        &[
-            "train",
-            "recordings/chair-train.mcap",
-            "-o",
-            p(&model),
-            "--save",
-            p(&dir.join("train.rrd")),
-        ],
-        &[],
-    ));
-    model
-}
-
-fn report(path: &Path) -> Value {
-    serde_json::from_slice(&std::fs::read(path).expect("report")).expect("report JSON")
-}
+use crate::common::pyenv::py_json;
+use crate::common::{json, objloc, ok, one_line_error, p, repo_dir, train};
 
 #[test]
 fn demo_locates_the_chair_and_writes_its_outputs() {
@@ -95,7 +37,7 @@ fn demo_locates_the_chair_and_writes_its_outputs() {
             && text.contains("trajectory: /odom ATE"),
         "{text}"
     );
-    let r = report(&out_dir.join("report.json"));
+    let r = json(&out_dir.join("report.json"));
     assert_eq!(r["frames"], 8);
     assert_eq!(r["objects"].as_array().unwrap().len(), 1);
     assert_eq!(r["grid"]["voxel_size_m"], 0.04);
@@ -164,14 +106,14 @@ fn fuse_is_bit_identical_across_runs_and_thread_counts() {
             !quiet,
             "run {run}: .rrd beside the report"
         );
-        let r = report(&rep);
+        let r = json(&rep);
         shas.push(r["grid"]["sha256"].as_str().unwrap().to_owned());
         grids.push(std::fs::read(&grid).unwrap());
         // Everything but the timing is a function of the inputs.
         let mut r = r;
         r.as_object_mut().unwrap().remove("timing_ms");
         if run > 0 {
-            let mut first = report(&dir.path().join("r0.json"));
+            let mut first = json(&dir.path().join("r0.json"));
             first.as_object_mut().unwrap().remove("timing_ms");
             assert_eq!(r, first, "report of run {run} ({threads} threads)");
         }
@@ -215,20 +157,19 @@ fn grid_matches_an_independent_numpy_update() {
         ],
         &[],
     ));
-    let out = run_checked(
-        Command::new(python())
-            .arg(repo_dir().join("tests/py/independent_update.py"))
-            .arg(repo_dir().join("recordings/chair-tour.mcap"))
-            .arg(pred.join("tile_probs.npy"))
-            .arg(pred.join("stamps.npy"))
-            .arg(&rep)
-            .arg(&grid),
-    )
-    .unwrap_or_else(|e| panic!("{e}"));
-    let v: Value = serde_json::from_slice(&out.stdout).unwrap();
+    let v = py_json(
+        "independent_update.py",
+        &[
+            repo_dir().join("recordings/chair-tour.mcap"),
+            pred.join("tile_probs.npy"),
+            pred.join("stamps.npy"),
+            rep.clone(),
+            grid,
+        ],
+    );
     assert_eq!(v["differing"], 0, "{v}");
     // The comparison is not vacuous: 8 frames updated most of the grid, and the object rose.
-    let updated_by_objloc: u64 = report(&rep)["per_frame"]
+    let updated_by_objloc: u64 = json(&rep)["per_frame"]
         .as_array()
         .unwrap()
         .iter()
@@ -279,7 +220,7 @@ fn eval_scores_reports_side_by_side() {
     assert!(text.contains("trajectory at 8 frames: /odom ATE"), "{text}");
     assert_eq!(text.matches("frame   7:").count(), 2, "{text}");
     // JSON: one evaluation per report, per-frame errors for all 8 frames.
-    let json = ok(&objloc(
+    let text = ok(&objloc(
         &[
             "eval",
             "recordings/chair-tour.mcap",
@@ -289,7 +230,7 @@ fn eval_scores_reports_side_by_side() {
         ],
         &[],
     ));
-    let v: Value = serde_json::from_str(&json).unwrap();
+    let v: Value = serde_json::from_str(&text).unwrap();
     assert_eq!(v[0]["per_frame"].as_array().unwrap().len(), 8);
     assert_eq!(v[0]["matches"].as_array().unwrap().len(), 1);
     assert!(v[0]["voxel_iou"].as_f64().unwrap() > 0.0);
@@ -301,7 +242,7 @@ fn eval_scores_reports_side_by_side() {
     assert_eq!(t["fused_ate_m"], t["odometry_ate_m"]);
     // A report from before `centroid_m` meant the centre of the extent is refused, not
     // misread.
-    let mut old = report(&reports[0]);
+    let mut old = json(&reports[0]);
     old["report_version"] = 1.into();
     let old_path = dir.path().join("old.json");
     std::fs::write(&old_path, serde_json::to_vec(&old).unwrap()).unwrap();
@@ -352,11 +293,11 @@ fn shipped_tours_meet_the_accuracy_target() {
                 ],
                 &[],
             ));
-            let json = ok(&objloc(
+            let text = ok(&objloc(
                 &["eval", &session, "--report", p(&rep), "--json"],
                 &[],
             ));
-            let v: Value = serde_json::from_str(&json).unwrap();
+            let v: Value = serde_json::from_str(&text).unwrap();
             let e = &v[0];
             let expected = if *tour == "two-chairs-tour" { 2 } else { 1 };
             let matches = e["matches"].as_array().unwrap();
@@ -364,7 +305,7 @@ fn shipped_tours_meet_the_accuracy_target() {
             assert_eq!(e["missed"].as_array().unwrap().len(), 0, "{tour}: {e}");
             assert_eq!(e["spurious"].as_array().unwrap().len(), 0, "{tour}: {e}");
             assert_eq!(
-                report(&rep)["objects"].as_array().unwrap().len(),
+                json(&rep)["objects"].as_array().unwrap().len(),
                 expected,
                 "{tour}"
             );
@@ -508,18 +449,13 @@ fn reports_match_their_published_schema() {
         ok(&objloc(&args, &[]));
         reports.push(rep);
     }
-    let refined = report(&reports[1]);
+    let refined = json(&reports[1]);
     assert!(
         refined["per_frame"][3]["correction"]["applied"].is_boolean(),
         "{refined}"
     );
-    let out = run_checked(
-        Command::new(python())
-            .arg(repo_dir().join("tests/py/validate_report.py"))
-            .arg(repo_dir().join("schemas/report.schema.json"))
-            .args(&reports),
-    )
-    .unwrap_or_else(|e| panic!("{e}"));
-    let v: Value = serde_json::from_slice(&out.stdout).unwrap();
+    let mut args = vec![repo_dir().join("schemas/report.schema.json")];
+    args.extend(reports);
+    let v = py_json("validate_report.py", &args);
     assert_eq!(v["valid"], 2, "{v}");
 }

@@ -7,65 +7,37 @@
 //! (target/pyenv, or `$OBJLOC_PYENV`) from tests/py/requirements.txt, exactly once per
 //! requirements hash: a stamp file holds the hash, a file lock keeps two test processes from
 //! installing at once, and a `OnceLock` does the same for the threads of one. Expected values
-//! come from tests/common (what objloc wrote) or are written out here by hand, never from the
-//! code under test.
-
-mod common;
+//! come from `common::fixture` (what objloc wrote) or are written out here by hand, never
+//! from the code under test.
 
 use std::ffi::OsStr;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Command;
 
 use objloc_core::io::msgs::{GroundTruth, ObjectLabel, RosMessage, schema_text};
 use objloc_core::io::session::{SessionMsg, SessionReader, Topics};
 use serde_json::{Value, json};
 
-use common::pyenv::{
-    REQUIREMENTS, STAMP_FILE, ensure_pyenv, python, repo_dir, run_checked, sha256_hex,
-};
-use common::{
+use crate::common::fixture::{
     CAMERA_FRAME, CMD_ANGULAR_Z_RADPS, CMD_LINEAR_X_MPS, FRAMES, HEIGHT_PX, MOUNT_ROTATION_XYZW,
     MOUNT_TRANSLATION_M, OBJECT, RECT_PX, T0_NS, WIDTH_PX, write_fixture_session,
 };
-
-/// Runs `tests/py/<script>` with `args` in the venv and parses its stdout as JSON.
-fn py_json<S: AsRef<OsStr>>(script: &str, args: &[S]) -> Value {
-    let out = run_checked(
-        Command::new(python())
-            .arg(repo_dir().join("tests").join("py").join(script))
-            .args(args),
-    )
-    .unwrap_or_else(|e| panic!("{e}"));
-    serde_json::from_slice(&out.stdout).unwrap_or_else(|e| {
-        panic!(
-            "{script} printed no JSON ({e}):\n{}",
-            String::from_utf8_lossy(&out.stdout)
-        )
-    })
-}
-
-fn objloc<S: AsRef<OsStr>>(args: &[S]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_objloc"))
-        .args(args)
-        .output()
-        .expect("the objloc binary runs")
-}
+use crate::common::pyenv::{
+    REQUIREMENTS, STAMP_FILE, ensure_pyenv, py_json, rerun_cli, run_checked, sha256_hex,
+};
+use crate::common::{objloc, ok, repo_dir};
 
 /// `objloc inspect --json PATH`, which must succeed.
 fn inspect_json(path: &Path) -> Value {
-    let out = objloc(&[
-        OsStr::new("inspect"),
-        OsStr::new("--json"),
-        path.as_os_str(),
-    ]);
-    assert_eq!(
-        out.status.code(),
-        Some(0),
-        "inspect {} failed: {}",
-        path.display(),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    serde_json::from_slice(&out.stdout).expect("inspect --json prints JSON")
+    let text = ok(&objloc(
+        &[
+            OsStr::new("inspect"),
+            OsStr::new("--json"),
+            path.as_os_str(),
+        ],
+        &[],
+    ));
+    serde_json::from_str(&text).expect("inspect --json prints JSON")
 }
 
 fn at<'a>(v: &'a Value, pointer: &str) -> &'a Value {
@@ -455,9 +427,8 @@ fn rerun_converts_an_objloc_session_to_rrd() {
     let path = dir.path().join("fixture.mcap");
     let fx = write_fixture_session(&path);
     let rrd = dir.path().join("fixture.rrd");
-    let rerun = python().with_file_name("rerun");
     let out = run_checked(
-        Command::new(&rerun)
+        Command::new(rerun_cli())
             .args(["mcap", "convert"])
             .arg(&path)
             .arg("-o")
@@ -616,7 +587,7 @@ fn inspect_summarises_real_rosbag2_bags() {
 }
 
 /// Creates a venv from nothing in a temporary directory (slow: downloads the wheels).
-/// Run with `cargo test --release --test interop -- --ignored`.
+/// Run with `cargo test --release --test it interop::pyenv -- --ignored`.
 #[test]
 #[ignore]
 fn pyenv_is_created_from_scratch() {

@@ -4,27 +4,19 @@
 //! one-line errors naming the file and line.
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Command;
 use std::time::{Duration, Instant};
 
 use nalgebra::Point3;
+use objloc_core::io::msgs::iso_from_pose;
 use objloc_core::io::session::{SessionMsg, SessionReader, Topics};
 use objloc_core::types::geometry::{Camera, iso_from_parts};
-use objloc_core::io::msgs::iso_from_pose;
 
-const BIN: &str = env!("CARGO_BIN_EXE_objloc");
-
-fn repo() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-}
-
-fn run(args: &[&str]) -> Output {
-    Command::new(BIN).args(args).output().expect("objloc runs")
-}
+use crate::common::{objloc, ok, one_line_error, p, repo_dir};
 
 /// The `objloc record sim ...` lines of recordings/README.md, as (output file name, args).
 fn readme_commands() -> Vec<(String, Vec<String>)> {
-    let text = std::fs::read_to_string(repo().join("recordings/README.md")).unwrap();
+    let text = std::fs::read_to_string(repo_dir().join("recordings/README.md")).unwrap();
     text.lines()
         .filter(|l| l.starts_with("objloc record sim "))
         .map(|l| {
@@ -60,17 +52,10 @@ fn shipped_recordings_regenerate_byte_identically() {
         let out = dir.path().join(name);
         let mut args = args.clone();
         *args.last_mut().unwrap() = out.display().to_string();
-        let mut cmd = Command::new(BIN);
-        cmd.args(&args);
         // Thread count must not matter: alternate one thread and two.
-        cmd.env("RAYON_NUM_THREADS", if i % 2 == 0 { "1" } else { "2" });
-        let o = cmd.output().unwrap();
-        assert!(
-            o.status.success(),
-            "{name}: {}",
-            String::from_utf8_lossy(&o.stderr)
-        );
-        let shipped = std::fs::read(repo().join("recordings").join(name)).unwrap();
+        let threads = if i % 2 == 0 { "1" } else { "2" };
+        ok(&objloc(&args, &[("RAYON_NUM_THREADS", threads)]));
+        let shipped = std::fs::read(repo_dir().join("recordings").join(name)).unwrap();
         let fresh = std::fs::read(&out).unwrap();
         total_bytes += shipped.len();
         assert!(
@@ -171,7 +156,7 @@ fn true_centre_projects_inside_the_label() {
         "two-chairs-tour.mcap",
         "chair-tour-drift.mcap",
     ] {
-        let rows = project_truth(&repo().join("recordings").join(name), true);
+        let rows = project_truth(&repo_dir().join("recordings").join(name), true);
         let boxes = if name.starts_with("two") { 2 } else { 1 };
         assert_eq!(rows.len(), 8 * boxes, "{name}");
         for (stamp, object, (u, v), distance) in &rows {
@@ -194,7 +179,7 @@ fn true_centre_projects_inside_the_label() {
         ("two-chairs-tour.mcap", 0.0),
         ("bottle-tour.mcap", 12.0),
     ] {
-        let rows = project_truth(&repo().join("recordings").join(name), false);
+        let rows = project_truth(&repo_dir().join("recordings").join(name), false);
         let inside = rows.iter().filter(|r| r.3 == 0.0).count();
         for (stamp, object, (u, v), distance) in &rows {
             assert!(
@@ -212,13 +197,11 @@ fn true_centre_projects_inside_the_label() {
 
 #[test]
 fn train_sessions_have_three_views_and_eighteen_backgrounds() {
-    let o = run(&[
-        "inspect",
-        "--json",
-        repo().join("recordings/chair-train.mcap").to_str().unwrap(),
-    ]);
-    assert!(o.status.success());
-    let j: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let text = ok(&objloc(
+        &["inspect", "--json", "recordings/chair-train.mcap"],
+        &[],
+    ));
+    let j: serde_json::Value = serde_json::from_str(&text).unwrap();
     assert_eq!(j["frames"], 21);
     assert_eq!(j["labelled_frames"], 3);
     assert_eq!(j["background_frames"], 18);
@@ -233,7 +216,7 @@ fn killed_recording_leaves_a_readable_partial_and_no_final_file() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("long.mcap");
     let partial = dir.path().join("long.mcap.partial");
-    let mut child = Command::new(BIN)
+    let mut child = Command::new(env!("CARGO_BIN_EXE_objloc"))
         .args([
             "record", "sim", "--scene", "chair", "--kind", "tour", "--stops", "600", "--seed", "9",
             "-o",
@@ -264,13 +247,7 @@ fn killed_recording_leaves_a_readable_partial_and_no_final_file() {
         !out.exists(),
         "the final name must not appear for a killed recording"
     );
-    let o = run(&["inspect", partial.to_str().unwrap()]);
-    let text = String::from_utf8_lossy(&o.stdout);
-    assert!(
-        o.status.success(),
-        "{text}{}",
-        String::from_utf8_lossy(&o.stderr)
-    );
+    let text = ok(&objloc(&["inspect", p(&partial)], &[]));
     assert!(text.contains("warning: file is truncated"), "{text}");
     let frames: usize = text
         .lines()
@@ -286,23 +263,25 @@ fn killed_recording_leaves_a_readable_partial_and_no_final_file() {
 fn same_seed_same_bytes_other_seed_other_bytes() {
     let dir = tempfile::tempdir().unwrap();
     let rec = |name: &str, seed: &str| {
-        let p = dir.path().join(name);
-        let o = run(&[
-            "record",
-            "sim",
-            "--scene",
-            "bottle",
-            "--kind",
-            "tour",
-            "--stops",
-            "3",
-            "--seed",
-            seed,
-            "-o",
-            p.to_str().unwrap(),
-        ]);
-        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-        std::fs::read(p).unwrap()
+        let path = dir.path().join(name);
+        ok(&objloc(
+            &[
+                "record",
+                "sim",
+                "--scene",
+                "bottle",
+                "--kind",
+                "tour",
+                "--stops",
+                "3",
+                "--seed",
+                seed,
+                "-o",
+                p(&path),
+            ],
+            &[],
+        ));
+        std::fs::read(path).unwrap()
     };
     let a = rec("a.mcap", "11");
     assert_eq!(a, rec("b.mcap", "11"));
@@ -313,71 +292,85 @@ fn same_seed_same_bytes_other_seed_other_bytes() {
 fn bad_scene_and_options_are_one_line_errors() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("x.mcap");
-    let o = run(&[
-        "record",
-        "sim",
-        "--scene",
-        "sofa",
-        "--kind",
-        "tour",
-        "-o",
-        out.to_str().unwrap(),
-    ]);
-    assert_eq!(o.status.code(), Some(1));
-    let err = String::from_utf8_lossy(&o.stderr);
+    let o = objloc(
+        &[
+            "record",
+            "sim",
+            "--scene",
+            "sofa",
+            "--kind",
+            "tour",
+            "-o",
+            p(&out),
+        ],
+        &[],
+    );
     assert_eq!(
-        err.trim(),
+        one_line_error(&o),
         "error: unknown scene \"sofa\"; built-in scenes are chair, bottle, two-chairs"
     );
     let scene = dir.path().join("s.json");
     std::fs::write(&scene, "{\"name\": 3}").unwrap();
-    let o = run(&[
-        "record",
-        "sim",
-        "--scene-file",
-        scene.to_str().unwrap(),
-        "--kind",
-        "tour",
-        "-o",
-        out.to_str().unwrap(),
-    ]);
-    assert_eq!(o.status.code(), Some(1));
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert!(
-        err.starts_with(&format!("error: scene {}: invalid type", scene.display())),
-        "{err}"
+    let o = objloc(
+        &[
+            "record",
+            "sim",
+            "--scene-file",
+            p(&scene),
+            "--kind",
+            "tour",
+            "-o",
+            p(&out),
+        ],
+        &[],
     );
-    assert_eq!(err.lines().count(), 1);
-    let o = run(&[
-        "record",
-        "sim",
-        "--scene",
-        "chair",
-        "--kind",
-        "train",
-        "--frames",
-        "99",
-        "-o",
-        out.to_str().unwrap(),
-    ]);
-    assert_eq!(o.status.code(), Some(1));
-    assert!(String::from_utf8_lossy(&o.stderr).contains("--frames must be 1 to 8, got 99"));
+    let line = one_line_error(&o);
+    assert!(
+        line.starts_with(&format!("error: scene {}: invalid type", scene.display())),
+        "{line}"
+    );
+    let o = objloc(
+        &[
+            "record",
+            "sim",
+            "--scene",
+            "chair",
+            "--kind",
+            "train",
+            "--frames",
+            "99",
+            "-o",
+            p(&out),
+        ],
+        &[],
+    );
+    let line = one_line_error(&o);
+    assert!(line.contains("--frames must be 1 to 8, got 99"), "{line}");
     assert!(!out.exists() && !dir.path().join("x.mcap.partial").exists());
 }
 
-fn write_png(path: &Path, w: u32, h: u32, rgb: [u8; 3]) {
-    let img = image::RgbImage::from_pixel(w, h, image::Rgb(rgb));
-    img.save(path).unwrap();
+/// `dir/rgb` holding one single-colour PNG per (file name, width, height, colour).
+fn image_dir(dir: &Path, images: &[(&str, u32, u32, [u8; 3])]) -> PathBuf {
+    let rgb = dir.join("rgb");
+    std::fs::create_dir(&rgb).unwrap();
+    for &(name, w, h, colour) in images {
+        let img = image::RgbImage::from_pixel(w, h, image::Rgb(colour));
+        img.save(rgb.join(name)).unwrap();
+    }
+    rgb
 }
 
 #[test]
 fn import_tum_sequence_with_labels() {
     let dir = tempfile::tempdir().unwrap();
-    let images = dir.path().join("rgb");
-    std::fs::create_dir(&images).unwrap();
     // File stems are timestamps: matched by interpolating the trajectory.
-    write_png(&images.join("100.50.png"), 32, 24, [200, 20, 20]);
-    write_png(&images.join("101.00.png"), 32, 24, [20, 200, 20]);
+    let images = image_dir(
+        dir.path(),
+        &[
+            ("100.50.png", 32, 24, [200, 20, 20]),
+            ("101.00.png", 32, 24, [20, 200, 20]),
+        ],
+    );
     let traj = dir.path().join("traj.txt");
     std::fs::write(
         &traj,
@@ -391,23 +384,25 @@ fn import_tum_sequence_with_labels() {
     )
     .unwrap();
     let out = dir.path().join("imp.mcap");
-    let o = run(&[
-        "record",
-        "import",
-        "--images",
-        images.to_str().unwrap(),
-        "--trajectory",
-        traj.to_str().unwrap(),
-        "--camera",
-        "30,31,16,12",
-        "--labels",
-        labels.to_str().unwrap(),
-        "--object",
-        "cup",
-        "-o",
-        out.to_str().unwrap(),
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    ok(&objloc(
+        &[
+            "record",
+            "import",
+            "--images",
+            p(&images),
+            "--trajectory",
+            p(&traj),
+            "--camera",
+            "30,31,16,12",
+            "--labels",
+            p(&labels),
+            "--object",
+            "cup",
+            "-o",
+            p(&out),
+        ],
+        &[],
+    ));
     let reader = SessionReader::open(&out, Topics::default()).unwrap();
     let mut odom_x = Vec::new();
     let mut regions = Vec::new();
@@ -432,10 +427,10 @@ fn import_tum_sequence_with_labels() {
 #[test]
 fn import_errors_name_file_and_line() {
     let dir = tempfile::tempdir().unwrap();
-    let images = dir.path().join("rgb");
-    std::fs::create_dir(&images).unwrap();
-    write_png(&images.join("a.png"), 8, 8, [1, 2, 3]);
-    write_png(&images.join("b.png"), 8, 8, [1, 2, 3]);
+    let images = image_dir(
+        dir.path(),
+        &[("a.png", 8, 8, [1, 2, 3]), ("b.png", 8, 8, [1, 2, 3])],
+    );
     let traj = dir.path().join("traj.txt");
     std::fs::write(&traj, "1.0 0 0 0 0 0 0 1\n2.0 0 0 0 0 0 1\n").unwrap();
     let out = dir.path().join("imp.mcap");
@@ -444,13 +439,13 @@ fn import_errors_name_file_and_line() {
             "record",
             "import",
             "--images",
-            images.to_str().unwrap(),
+            p(&images),
             "--trajectory",
-            traj.to_str().unwrap(),
+            p(traj),
             "--camera",
             "5,5,4,4",
             "-o",
-            out.to_str().unwrap(),
+            p(&out),
         ]
         .iter()
         .map(|s| s.to_string())
@@ -458,46 +453,34 @@ fn import_errors_name_file_and_line() {
         a.extend(extra.iter().map(|s| s.to_string()));
         a
     };
-    let o = Command::new(BIN).args(args(&traj, &[])).output().unwrap();
-    assert_eq!(o.status.code(), Some(1));
-    let err = String::from_utf8_lossy(&o.stderr);
+    let line = one_line_error(&objloc(&args(&traj, &[]), &[]));
     assert!(
-        err.contains(&format!("{}:2: expected 8 fields", traj.display())),
-        "{err}"
+        line.contains(&format!("{}:2: expected 8 fields", traj.display())),
+        "{line}"
     );
-    assert_eq!(err.lines().count(), 1);
     // In-order matching needs one line per image; a label for an unknown image names its line.
     std::fs::write(&traj, "1.0 0 0 0 0 0 0 1\n2.0 0 0 0 0 0 0 1\n").unwrap();
     let labels = dir.path().join("l.csv");
-    std::fs::write(&labels, "a.png,0,0,4,4\nzzz.png,,,,\n").unwrap();
-    let o = Command::new(BIN)
-        .args(args(&traj, &["--labels", labels.to_str().unwrap()]))
-        .output()
-        .unwrap();
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert!(
-        err.contains(&format!(
-            "{}:2: image \"zzz.png\" is not in",
-            labels.display()
-        )),
-        "{err}"
-    );
-    std::fs::write(&labels, "a.png,6,0,4,4\n").unwrap();
-    let o = Command::new(BIN)
-        .args(args(&traj, &["--labels", labels.to_str().unwrap()]))
-        .output()
-        .unwrap();
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert!(
-        err.contains(&format!(
-            "{}:1: box x 6 y 0 4 x 4 leaves the 8 x 8 image",
-            labels.display()
-        )),
-        "{err}"
-    );
+    for (csv, expect) in [
+        (
+            "a.png,0,0,4,4\nzzz.png,,,,\n",
+            "2: image \"zzz.png\" is not in",
+        ),
+        (
+            "a.png,6,0,4,4\n",
+            "1: box x 6 y 0 4 x 4 leaves the 8 x 8 image",
+        ),
+    ] {
+        std::fs::write(&labels, csv).unwrap();
+        let line = one_line_error(&objloc(&args(&traj, &["--labels", p(&labels)]), &[]));
+        assert!(
+            line.contains(&format!("{}:{expect}", labels.display())),
+            "{line}"
+        );
+    }
     assert!(!out.exists());
     // And the good case, in order.
-    let o = Command::new(BIN).args(args(&traj, &[])).output().unwrap();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let o = objloc(&args(&traj, &[]), &[]);
+    ok(&o);
     assert!(String::from_utf8_lossy(&o.stderr).contains("matched in order"));
 }

@@ -30,42 +30,12 @@
 //! the binary from recordings/chair-train.mcap (the foreign test from each scene's own
 //! training session).
 
-mod common;
-
 use std::f64::consts::PI;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
 
-use common::pyenv::repo_dir;
 use serde_json::Value;
 
-fn objloc(args: &[&str], envs: &[(&str, &str)]) -> Output {
-    let mut cmd = Command::new(env!("CARGO_BIN_EXE_objloc"));
-    cmd.current_dir(repo_dir()).args(args);
-    for (k, v) in envs {
-        cmd.env(k, v);
-    }
-    cmd.output().expect("run objloc")
-}
-
-fn ok(out: &Output) -> String {
-    assert!(
-        out.status.success(),
-        "exit {:?}\n--- stdout\n{}\n--- stderr\n{}",
-        out.status,
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8_lossy(&out.stdout).into_owned()
-}
-
-fn p(path: &Path) -> &str {
-    path.to_str().expect("utf-8 temp path")
-}
-
-fn json(path: &Path) -> Value {
-    serde_json::from_slice(&std::fs::read(path).expect("read")).expect("JSON")
-}
+use crate::common::{json, objloc, ok, p, repo_dir, train};
 
 /// The chair tour of the shipped recordings (seed 2) with no random speed noise and the
 /// given turn bias.
@@ -91,22 +61,6 @@ fn record(dir: &Path, turn_bias: &str) -> PathBuf {
         &[],
     ));
     out
-}
-
-fn train(dir: &Path) -> PathBuf {
-    let model = dir.join("chair.json");
-    ok(&objloc(
-        &[
-            "train",
-            "recordings/chair-train.mcap",
-            "-o",
-            p(&model),
-            "--save",
-            p(&dir.join("train.rrd")),
-        ],
-        &[],
-    ));
-    model
 }
 
 /// How a session is fused.
@@ -272,44 +226,30 @@ fn a_repeating_floor_does_not_move_exact_odometry() {
     let dir = tempfile::tempdir().unwrap();
     let model = dir.path().join("chair.json");
     let scene = repo_dir().join("scripts/heldout/chair-checker-floor.json");
-    let train_session = dir.path().join("train.mcap");
-    ok(&objloc(
-        &[
+    let record = |kind: &str, seed: &str, extra: &[&str]| {
+        let out = dir.path().join(format!("{kind}.mcap"));
+        let mut args = vec![
             "record",
             "sim",
             "--scene-file",
             p(&scene),
             "--kind",
-            "train",
+            kind,
             "--seed",
-            "11",
+            seed,
             "-o",
-            p(&train_session),
-        ],
-        &[],
-    ));
+            p(&out),
+        ];
+        args.extend_from_slice(extra);
+        ok(&objloc(&args, &[]));
+        out
+    };
+    let train_session = record("train", "11", &[]);
     ok(&objloc(
         &["train", p(&train_session), "-o", p(&model), "--no-rerun"],
         &[],
     ));
-    let tour = dir.path().join("tour.mcap");
-    ok(&objloc(
-        &[
-            "record",
-            "sim",
-            "--scene-file",
-            p(&scene),
-            "--kind",
-            "tour",
-            "--seed",
-            "31",
-            "--speed-noise",
-            "0,0",
-            "-o",
-            p(&tour),
-        ],
-        &[],
-    ));
+    let tour = record("tour", "31", &["--speed-noise", "0,0"]);
     let (report, eval) = fuse_and_eval(&tour, &model, Mode::Refined, "2");
     let (odom_ate, fused_ate) = ate(&eval);
     assert!(odom_ate < 1e-9, "exact odometry: {odom_ate}");

@@ -9,76 +9,28 @@
 //! runner, so every run sees the same bytes; expected messages are hand-written strings.
 //! docs/reliability.md lists every bad input and the test that checks it.
 
-mod common;
-
 use std::collections::BTreeMap;
 use std::ffi::OsStr;
 use std::io::BufWriter;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
-use std::sync::{OnceLock, mpsc};
+use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
 use objloc_core::io::msgs::{
-    CameraInfo, CompressedImage, Header, Image, ObjectLabel, Odometry, RegionOfInterest,
-    RosMessage, TfMessage, TransformStamped, Twist, TwistStamped, schema_text,
+    CompressedImage, Header, Image, Odometry, RosMessage, Twist, schema_text,
 };
 use objloc_core::io::session::{SessionReader, Topics, fmt_ns};
 use proptest::prelude::*;
 
-use common::{
-    CAMERA_FRAME, CX_PX, CY_PX, FX_PX, FY_PX, HEIGHT_PX, MOUNT_ROTATION_XYZW, MOUNT_TRANSLATION_M,
-    OBJECT, RECT_PX, T0_NS, WIDTH_PX, fixture_png, odom_pose,
+use crate::common::fixture::{
+    CAMERA_FRAME, HEIGHT_PX, MOUNT_TRANSLATION_M, T0_NS, WIDTH_PX, camera_info, cmd_vel,
+    fixture_png, frame_stamp_ns, label, mount, odom_pose,
 };
-
-/// Longer than any healthy run on these inputs takes, even on a loaded two-core machine.
-const HANG_LIMIT: Duration = Duration::from_secs(60);
+use crate::common::{Run, objloc_bounded, repo_dir, train};
 
 // ---------------------------------------------------------------------------------------------
-// Running the binary
-
-struct Run {
-    args: String,
-    code: Option<i32>,
-    stdout: String,
-    stderr: String,
-}
-
-/// Runs objloc with `args`, failing the test if it does not end within HANG_LIMIT.
-fn objloc<S: AsRef<OsStr>>(args: &[S]) -> Run {
-    let child = Command::new(env!("CARGO_BIN_EXE_objloc"))
-        .args(args)
-        .stdin(Stdio::null())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("objloc starts");
-    let shown: Vec<String> = args
-        .iter()
-        .map(|a| a.as_ref().to_string_lossy().into_owned())
-        .collect();
-    let shown = shown.join(" ");
-    let pid = child.id();
-    let (tx, rx) = mpsc::channel();
-    std::thread::spawn(move || {
-        let _ = tx.send(child.wait_with_output());
-    });
-    match rx.recv_timeout(HANG_LIMIT) {
-        Ok(out) => {
-            let out = out.expect("objloc output is collected");
-            Run {
-                args: shown,
-                code: out.status.code(),
-                stdout: String::from_utf8_lossy(&out.stdout).into_owned(),
-                stderr: String::from_utf8_lossy(&out.stderr).into_owned(),
-            }
-        }
-        Err(_) => {
-            let _ = Command::new("kill").arg("-9").arg(pid.to_string()).status();
-            panic!("objloc {shown} hung for {HANG_LIMIT:?}");
-        }
-    }
-}
+// Running the binary (`objloc_bounded`: within HANG_LIMIT)
 
 /// Exit 0 or 1, never a panic or a signal; on 1, exactly one stderr line `error: ...` naming
 /// `path`. Returns the error line, if any.
@@ -169,7 +121,8 @@ fn outputs_in(dir: &Path, inputs: &[&Path]) -> Vec<String> {
     names
 }
 
-/// The model every fuse and predict here uses: trained once on the shipped chair recording.
+/// The model every fuse and predict here uses: trained once per test process on the shipped
+/// chair recording (`common::train`).
 fn model() -> &'static Path {
     static MODEL: OnceLock<PathBuf> = OnceLock::new();
     MODEL.get_or_init(|| {
@@ -177,26 +130,12 @@ fn model() -> &'static Path {
         let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR"))
             .join(format!("reliability-{}", std::process::id()));
         std::fs::create_dir_all(&dir).expect("model dir");
-        let model = dir.join("chair-model.json");
-        let train = repo().join("recordings/chair-train.mcap");
-        let run = objloc(&[
-            OsStr::new("train"),
-            train.as_os_str(),
-            OsStr::new("-o"),
-            model.as_os_str(),
-            OsStr::new("--save"),
-            dir.join("train.rrd").as_os_str(),
-        ]);
-        assert_eq!(run.code, Some(0), "{}", run.stderr);
-        // The model (11 kB) outlives the test process in the temp dir; its recording (MBs)
+        let model = train(&dir);
+        // The model (60 kB) outlives the test process in the temp dir; its recording (MBs)
         // is not needed.
-        let _ = std::fs::remove_file(dir.join("train.rrd"));
+        let _ = std::fs::remove_file(dir.join("chair.rrd"));
         model
     })
-}
-
-fn repo() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
 }
 
 /// `objloc fuse SESSION --model M --report DIR/r.json --grid DIR/g.npy`, checking that a
@@ -218,7 +157,7 @@ fn fuse(dir: &Path, session: &Path, extra: &[&str]) -> Run {
         grid.as_os_str(),
     ];
     args.extend(extra.iter().map(OsStr::new));
-    let run = objloc(&args);
+    let run = objloc_bounded(&args);
     if run.code != Some(0) {
         let left: Vec<String> = outputs_in(dir, &[])
             .into_iter()
@@ -235,14 +174,14 @@ fn fuse(dir: &Path, session: &Path, extra: &[&str]) -> Run {
 }
 
 fn inspect(session: &Path) -> Run {
-    objloc(&[OsStr::new("inspect"), session.as_os_str()])
+    objloc_bounded(&[OsStr::new("inspect"), session.as_os_str()])
 }
 
 /// `objloc train SESSION -o DIR/m.json`; a failed run leaves no model.
-fn train(dir: &Path, session: &Path) -> Run {
+fn try_train(dir: &Path, session: &Path) -> Run {
     let out = dir.join("m.json");
     let _ = std::fs::remove_file(&out);
-    let run = objloc(&[
+    let run = objloc_bounded(&[
         OsStr::new("train"),
         session.as_os_str(),
         OsStr::new("-o"),
@@ -261,7 +200,7 @@ fn train(dir: &Path, session: &Path) -> Run {
 fn predict(dir: &Path, session: &Path, model: &Path) -> Run {
     let out = dir.join("pred");
     let _ = std::fs::remove_dir_all(&out);
-    let run = objloc(&[
+    let run = objloc_bounded(&[
         OsStr::new("predict"),
         session.as_os_str(),
         OsStr::new("--model"),
@@ -360,27 +299,9 @@ fn write_mcap(path: &Path, msgs: &[Msg], layout: Layout) {
     w.finish().expect("mcap finish");
 }
 
-const FRAME_PERIOD_NS: i64 = 100_000_000;
-
-fn stamp(k: usize) -> i64 {
-    T0_NS + k as i64 * FRAME_PERIOD_NS
-}
-
-fn camera_info(k: usize) -> CameraInfo {
-    CameraInfo::pinhole(
-        Header::new(stamp(k), CAMERA_FRAME),
-        WIDTH_PX,
-        HEIGHT_PX,
-        FX_PX,
-        FY_PX,
-        CX_PX,
-        CY_PX,
-    )
-}
-
 fn odometry(k: usize) -> Odometry {
     Odometry {
-        header: Header::new(stamp(k), "odom"),
+        header: Header::new(frame_stamp_ns(k), "odom"),
         child_frame_id: "base_link".into(),
         pose: odom_pose(k),
         pose_covariance: [0.0; 36],
@@ -391,43 +312,21 @@ fn odometry(k: usize) -> Odometry {
 
 fn compressed(k: usize, format: &str, data: Vec<u8>) -> CompressedImage {
     CompressedImage {
-        header: Header::new(stamp(k), CAMERA_FRAME),
+        header: Header::new(frame_stamp_ns(k), CAMERA_FRAME),
         format: format.into(),
         data,
     }
 }
 
-fn cmd_vel(v_mps: f64, w_radps: f64) -> TwistStamped {
-    TwistStamped {
-        header: Header::new(T0_NS, "base_link"),
-        twist: Twist {
-            linear: [v_mps, 0.0, 0.0],
-            angular: [0.0, 0.0, w_radps],
-        },
-    }
-}
-
-fn mount(translation_m: [f64; 3]) -> TfMessage {
-    TfMessage {
-        transforms: vec![TransformStamped {
-            header: Header::new(T0_NS, "base_link"),
-            child_frame_id: CAMERA_FRAME.into(),
-            translation: translation_m,
-            rotation_xyzw: MOUNT_ROTATION_XYZW,
-        }],
-    }
-}
-
-/// A complete small session of `frames` frames (tests/common's fixture images and poses):
+/// A complete small session of `frames` frames (`common::fixture`'s images and poses):
 /// mount, one command, then per frame /odom, CameraInfo, the PNG and (frames 0 and 1) a label.
 fn tour(frames: usize) -> Vec<Msg> {
     let mut out = vec![
         msg("/tf_static", T0_NS, &mount(MOUNT_TRANSLATION_M)),
         msg("/cmd_vel", T0_NS, &cmd_vel(0.25, 0.1)),
     ];
-    let (rx, ry, rw, rh) = RECT_PX;
     for k in 0..frames {
-        let s = stamp(k);
+        let s = frame_stamp_ns(k);
         out.push(msg("/odom", s, &odometry(k)));
         out.push(msg("/camera/camera_info", s, &camera_info(k)));
         out.push(msg(
@@ -436,23 +335,7 @@ fn tour(frames: usize) -> Vec<Msg> {
             &compressed(k, "png", fixture_png(4 * k as u32)),
         ));
         if k < 2 {
-            let regions = if k == 0 {
-                vec![RegionOfInterest {
-                    x_offset: rx,
-                    y_offset: ry,
-                    height: rh,
-                    width: rw,
-                    do_rectify: false,
-                }]
-            } else {
-                Vec::new()
-            };
-            let label = ObjectLabel {
-                header: Header::new(s, CAMERA_FRAME),
-                object: OBJECT.into(),
-                regions,
-            };
-            out.push(msg("/labels", s, &label));
+            out.push(msg("/labels", s, &label(k)));
         }
     }
     out
@@ -461,13 +344,13 @@ fn tour(frames: usize) -> Vec<Msg> {
 /// Index of the message on `topic` at frame `k`'s stamp.
 fn find(msgs: &[Msg], topic: &str, k: usize) -> usize {
     msgs.iter()
-        .position(|m| m.topic == topic && m.log_time_ns == stamp(k) as u64)
+        .position(|m| m.topic == topic && m.log_time_ns == frame_stamp_ns(k) as u64)
         .unwrap_or_else(|| panic!("no {topic} at frame {k}"))
 }
 
 /// `fmt_ns` of frame k's stamp as errors print it.
 fn at_frame(k: usize) -> String {
-    format!("at log time {}", fmt_ns(stamp(k) as u64))
+    format!("at log time {}", fmt_ns(frame_stamp_ns(k) as u64))
 }
 
 const FRAMES: usize = 4;
@@ -539,7 +422,7 @@ fn healthy_tour_fuses_trains_and_predicts() {
     assert_eq!(run.code, Some(0), "{}", run.stderr);
     assert!(run.stdout.contains("fused 4 of 4 frames"), "{}", run.stdout);
     assert!(dir.path().join("r.json").exists() && dir.path().join("g.npy").exists());
-    let run = train(dir.path(), &path);
+    let run = try_train(dir.path(), &path);
     assert_eq!(run.code, Some(0), "{}", run.stderr);
     let run = predict(dir.path(), &path, model());
     assert_eq!(run.code, Some(0), "{}", run.stderr);
@@ -548,7 +431,7 @@ fn healthy_tour_fuses_trains_and_predicts() {
 #[test]
 fn truncated_at_20_seeded_offsets() {
     let dir = tempfile::tempdir().unwrap();
-    let bytes = std::fs::read(repo().join("recordings/chair-tour.mcap")).unwrap();
+    let bytes = std::fs::read(repo_dir().join("recordings/chair-tour.mcap")).unwrap();
     let path = dir.path().join("cut.mcap");
     let mut rng = objloc_core::types::rng::SplitMix64::new(7);
     let (mut partial, mut refused) = (0, 0);
@@ -646,6 +529,17 @@ fn chunk_bit_flips_with_and_without_crc() {
     }
 }
 
+/// `inspect`, `fuse` and `train` each refuse every session of `cases` with one line: `cannot
+/// decode`, the reason and the log time of the frame (session, reason, frame).
+fn assert_undecodable(dir: &Path, cases: &[(&Path, &str, usize)]) {
+    for &(path, why, frame) in cases {
+        let at = at_frame(frame);
+        for run in [inspect(path), fuse(dir, path, &[]), try_train(dir, path)] {
+            assert_error(&run, path, &["cannot decode", why, &at]);
+        }
+    }
+}
+
 #[test]
 fn schema_that_does_not_match_its_payload() {
     let dir = tempfile::tempdir().unwrap();
@@ -658,19 +552,14 @@ fn schema_that_does_not_match_its_payload() {
     let long = write_tour(dir.path(), "long.mcap", |m| {
         m[1].payload = odometry(0).to_cdr();
     });
-    for (path, why, at) in [
-        // The Twist's floats are read as the child_frame_id's length.
-        (&short, "sequence length", at_frame(1)),
-        (&long, "bytes left over", at_frame(0)),
-    ] {
-        for run in [
-            inspect(path),
-            fuse(dir.path(), path, &[]),
-            train(dir.path(), path),
-        ] {
-            assert_error(&run, path, &["cannot decode", why, &at]);
-        }
-    }
+    assert_undecodable(
+        dir.path(),
+        &[
+            // The Twist's floats are read as the child_frame_id's length.
+            (&short, "sequence length", 1),
+            (&long, "bytes left over", 0),
+        ],
+    );
 }
 
 #[test]
@@ -696,19 +585,14 @@ fn cdr_cut_short_or_with_absurd_lengths_in_fuse_and_train() {
         assert_eq!(&p[at..at + 4], &1u32.to_le_bytes());
         p[at..at + 4].copy_from_slice(&u32::MAX.to_le_bytes());
     });
-    for (path, why, at) in [
-        (&cut, "payload cut short", at_frame(2)),
-        (&absurd, "sequence length 4000000000", at_frame(1)),
-        (&labels, "sequence length 4294967295", at_frame(0)),
-    ] {
-        for run in [
-            inspect(path),
-            fuse(dir.path(), path, &[]),
-            train(dir.path(), path),
-        ] {
-            assert_error(&run, path, &["cannot decode", why, &at]);
-        }
-    }
+    assert_undecodable(
+        dir.path(),
+        &[
+            (&cut, "payload cut short", 2),
+            (&absurd, "sequence length 4000000000", 1),
+            (&labels, "sequence length 4294967295", 0),
+        ],
+    );
 }
 
 #[test]
@@ -725,7 +609,7 @@ fn images_that_do_not_decode_or_are_too_large() {
     let mut huge_jpeg = jpeg.clone();
     huge_jpeg[sof + 5..sof + 9].copy_from_slice(&[0xff, 0xff, 0xff, 0xff]);
     let raw_huge = Image {
-        header: Header::new(stamp(1), CAMERA_FRAME),
+        header: Header::new(frame_stamp_ns(1), CAMERA_FRAME),
         height: 100_000,
         width: 100_000,
         encoding: "rgb8".into(),
@@ -744,7 +628,7 @@ fn images_that_do_not_decode_or_are_too_large() {
             "jpeg.mcap",
             msg(
                 "/camera/image/compressed",
-                stamp(1),
+                frame_stamp_ns(1),
                 &compressed(1, "jpeg", broken_jpeg),
             ),
             "does not decode",
@@ -753,7 +637,7 @@ fn images_that_do_not_decode_or_are_too_large() {
             "png-huge.mcap",
             msg(
                 "/camera/image/compressed",
-                stamp(1),
+                frame_stamp_ns(1),
                 &compressed(1, "png", png_header_only(100_000, 100_000)),
             ),
             "image of 100000 x 100000 pixels refused",
@@ -762,26 +646,26 @@ fn images_that_do_not_decode_or_are_too_large() {
             "jpeg-huge.mcap",
             msg(
                 "/camera/image/compressed",
-                stamp(1),
+                frame_stamp_ns(1),
                 &compressed(1, "jpeg", huge_jpeg),
             ),
             "image of 65535 x 65535 pixels refused",
         ),
         (
             "raw-huge.mcap",
-            msg("/camera/image", stamp(1), &raw_huge),
+            msg("/camera/image", frame_stamp_ns(1), &raw_huge),
             "image of 100000 x 100000 pixels refused",
         ),
         (
             "raw-short.mcap",
-            msg("/camera/image", stamp(1), &raw_short),
+            msg("/camera/image", frame_stamp_ns(1), &raw_short),
             "needs 9216 bytes, has 64",
         ),
         (
             "format.mcap",
             msg(
                 "/camera/image/compressed",
-                stamp(1),
+                frame_stamp_ns(1),
                 &compressed(1, "webp", fixture_png(4)),
             ),
             "compressed format \"webp\" is not read",
@@ -802,7 +686,7 @@ fn images_that_do_not_decode_or_are_too_large() {
         assert_error(&inspect(&path), &path, &needles);
         assert_error(&fuse(dir.path(), &path, &[]), &path, &needles);
         // Frame 1 is the labelled background frame: training decodes it too.
-        assert_error(&train(dir.path(), &path), &path, &needles);
+        assert_error(&try_train(dir.path(), &path), &path, &needles);
         assert_error(&predict(dir.path(), &path, model()), &path, &needles);
     }
 }
@@ -891,7 +775,7 @@ fn stamps_going_backwards() {
     let header_back = write_tour(dir.path(), "header.mcap", |m| {
         let i = find(m, "/camera/image/compressed", 2);
         let mut c = compressed(2, "png", fixture_png(8));
-        c.header.stamp_ns = stamp(0) + 50_000_000;
+        c.header.stamp_ns = frame_stamp_ns(0) + 50_000_000;
         m[i].payload = c.to_cdr();
     });
     let run = fuse(dir.path(), &header_back, &[]);
@@ -963,7 +847,7 @@ fn frames_without_pose_or_camera_info() {
         &no_frame,
         &["/camera/image/compressed", "missing"],
     );
-    assert_error(&train(dir.path(), &no_frame), &no_frame, &[]);
+    assert_error(&try_train(dir.path(), &no_frame), &no_frame, &[]);
 }
 
 #[test]
@@ -1036,7 +920,7 @@ fn model_files_corrupt_of_another_version_or_feature_spec() {
         let bad = dir.path().join(name);
         std::fs::write(&bad, body).unwrap();
         for run in [predict(dir.path(), &path, &bad), {
-            let r = objloc(&[
+            let r = objloc_bounded(&[
                 OsStr::new("fuse"),
                 path.as_os_str(),
                 OsStr::new("--model"),
@@ -1056,7 +940,7 @@ fn model_files_corrupt_of_another_version_or_feature_spec() {
 fn killed_fuse_leaves_no_finished_looking_output() {
     let dir = tempfile::tempdir().unwrap();
     let session = dir.path().join("long.mcap");
-    let run = objloc(&[
+    let run = objloc_bounded(&[
         OsStr::new("record"),
         OsStr::new("sim"),
         OsStr::new("--scene"),
@@ -1311,7 +1195,7 @@ proptest! {
             Ok(m) => {
                 // Accepted: it must classify a frame without panicking.
                 let img = image::load_from_memory(&fixture_png(0)).expect("png").into_rgb8();
-                let rgb = objloc_core::io::session::Rgb8 { width: img.width(), height: img.height(), data: img.into_raw() };
+                let rgb = objloc_core::types::image::Rgb8 { width: img.width(), height: img.height(), data: img.into_raw() };
                 let p = m.predict(&rgb);
                 let _ = p;
             }
@@ -1342,7 +1226,7 @@ proptest! {
         }
         std::fs::write(&path, &bytes).expect("write");
         assert_clean_exit(&inspect(&path), &path);
-        assert_clean_exit(&train(dir.path(), &path), &path);
+        assert_clean_exit(&try_train(dir.path(), &path), &path);
         assert_clean_exit(&fuse(dir.path(), &path, &[]), &path);
 
         let mut m = std::fs::read(model()).expect("model");

@@ -3,67 +3,31 @@
 //! `error: ...` naming the file and, where a message is to blame, its topic and log time
 //! (exit 1); never a panic (exit 101), a signal or a hang.
 //!
-//! Invariants: inputs are built here from constants (tests/common's fixture, an LCG for noise
+//! Invariants: inputs are built here from constants (`common::fixture`, an LCG for noise
 //! images), so every run sees the same bytes; expected messages are hand-written strings.
 
-mod common;
-
 use std::collections::BTreeMap;
+use std::ffi::OsStr;
 use std::io::BufWriter;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
-use std::sync::mpsc;
-use std::time::Duration;
 
 use objloc_core::io::msgs::{
     CompressedImage, Header, Odometry, Pose, RosMessage, Twist, schema_text,
 };
 use objloc_core::io::session::SessionWriter;
 
-use common::{T0_NS, fixture_png, write_fixture_session};
+use crate::common::fixture::{T0_NS, fixture_png, write_fixture_session};
+use crate::common::{Run, objloc_bounded};
 
-/// Longer than any healthy inspect of these small files takes, even on a loaded machine.
-const HANG_LIMIT: Duration = Duration::from_secs(60);
-
-struct Run {
-    code: Option<i32>,
-    stdout: String,
-    stderr: String,
-}
-
-/// Runs `objloc inspect [--json] PATH`, failing the test if it does not end within HANG_LIMIT.
+/// Runs `objloc inspect [--json] PATH`, failing the test if it does not end within
+/// `HANG_LIMIT`.
 fn inspect(path: &Path, json: bool) -> Run {
-    let mut cmd = Command::new(env!("CARGO_BIN_EXE_objloc"));
-    cmd.arg("inspect");
+    let mut args = vec![OsStr::new("inspect")];
     if json {
-        cmd.arg("--json");
+        args.push(OsStr::new("--json"));
     }
-    let child = cmd
-        .arg(path)
-        .stdin(Stdio::null())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("objloc starts");
-    let pid = child.id();
-    let (tx, rx) = mpsc::channel();
-    std::thread::spawn(move || {
-        let _ = tx.send(child.wait_with_output());
-    });
-    match rx.recv_timeout(HANG_LIMIT) {
-        Ok(out) => {
-            let out = out.expect("objloc output is collected");
-            Run {
-                code: out.status.code(),
-                stdout: String::from_utf8_lossy(&out.stdout).into_owned(),
-                stderr: String::from_utf8_lossy(&out.stderr).into_owned(),
-            }
-        }
-        Err(_) => {
-            let _ = Command::new("kill").arg("-9").arg(pid.to_string()).status();
-            panic!("objloc inspect {} hung for {HANG_LIMIT:?}", path.display());
-        }
-    }
+    args.push(path.as_os_str());
+    objloc_bounded(&args)
 }
 
 /// Exit 1, nothing on stdout, exactly one stderr line starting `error: ` that names the file

@@ -6,10 +6,12 @@
 //! the sessions, and hence the models, are the same on every run.
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
 
 use objloc_core::io::msgs::{CompressedImage, Header, ObjectLabel, RegionOfInterest};
 use objloc_core::io::session::SessionWriter;
+
+use crate::common::pyenv::sha256_hex;
+use crate::common::{objloc, ok, one_line_error, p, repo_dir};
 
 const W: u32 = 256;
 const H: u32 = 240;
@@ -134,27 +136,6 @@ fn train_session(dir: &Path) -> PathBuf {
     p
 }
 
-fn objloc(args: &[&std::ffi::OsStr]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_objloc"))
-        .args(args)
-        .output()
-        .unwrap()
-}
-
-fn os<S: AsRef<std::ffi::OsStr> + ?Sized>(s: &S) -> &std::ffi::OsStr {
-    s.as_ref()
-}
-
-fn ok(out: &Output) -> String {
-    let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
-    assert!(
-        out.status.success(),
-        "stdout: {stdout}\nstderr: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    stdout
-}
-
 fn read_npy_header(path: &Path) -> (String, usize) {
     let b = std::fs::read(path).unwrap();
     let hlen = u16::from_le_bytes([b[8], b[9]]) as usize;
@@ -170,14 +151,17 @@ fn train_then_predict_finds_the_box() {
     let train = train_session(dir.path());
     let model = dir.path().join("model.json");
     let feats = dir.path().join("feats");
-    let out = objloc(&[
-        os("train"),
-        train.as_os_str(),
-        os("-o"),
-        model.as_os_str(),
-        os("--export-features"),
-        feats.as_os_str(),
-    ]);
+    let out = objloc(
+        &[
+            "train",
+            p(&train),
+            "-o",
+            p(&model),
+            "--export-features",
+            p(&feats),
+        ],
+        &[],
+    );
     let text = ok(&out);
     // No Rerun flag: the recording is saved beside the model.
     assert!(model.with_extension("rrd").exists());
@@ -205,10 +189,7 @@ fn train_then_predict_finds_the_box() {
     assert_eq!(meta["examples"]["train_shifted"]["examples"], 49626);
     assert_eq!(meta["examples"]["train"]["examples"], 5760 + 49626);
     let hash = meta["sessions"][0]["sha256"].as_str().unwrap();
-    assert_eq!(
-        hash,
-        objloc_core::learn::dataset::sha256_hex(&std::fs::read(&train).unwrap())
-    );
+    assert_eq!(hash, sha256_hex(&std::fs::read(&train).unwrap()));
     let auc = meta["test_metrics"]["roc_auc"].as_f64().unwrap();
     assert!(auc > 0.97, "test AUC {auc}");
     let base = m["base_rate"].as_f64().unwrap();
@@ -238,16 +219,19 @@ fn train_then_predict_finds_the_box() {
         ],
     );
     let pred = dir.path().join("pred");
-    let text = ok(&objloc(&[
-        os("predict"),
-        tour.as_os_str(),
-        os("--model"),
-        model.as_os_str(),
-        os("--out"),
-        pred.as_os_str(),
-        os("--heatmaps"),
-        os("--no-rerun"),
-    ]));
+    let text = ok(&objloc(
+        &[
+            "predict",
+            p(&tour),
+            "--model",
+            p(&model),
+            "--out",
+            p(&pred),
+            "--heatmaps",
+            "--no-rerun",
+        ],
+        &[],
+    ));
     assert!(
         !pred.join("predict.rrd").exists(),
         "--no-rerun wrote an .rrd"
@@ -298,13 +282,21 @@ fn model_is_identical_for_any_thread_count_and_stride_one_grid_has_no_shifted_ti
     let mut bytes = Vec::new();
     for threads in ["1", "2"] {
         let model = dir.path().join(format!("m{threads}.json"));
-        let out = Command::new(env!("CARGO_BIN_EXE_objloc"))
-            .env("RAYON_NUM_THREADS", threads)
-            .args([os("train"), train.as_os_str(), os("-o"), model.as_os_str()])
-            .args(["--features", "rgb332", "--train-stride", "8", "--seed", "3"])
-            .output()
-            .unwrap();
-        ok(&out);
+        ok(&objloc(
+            &[
+                "train",
+                p(&train),
+                "-o",
+                p(&model),
+                "--features",
+                "rgb332",
+                "--train-stride",
+                "8",
+                "--seed",
+                "3",
+            ],
+            &[("RAYON_NUM_THREADS", threads)],
+        ));
         bytes.push(std::fs::read(&model).unwrap());
     }
     assert_eq!(bytes[0], bytes[1]);
@@ -321,18 +313,9 @@ fn bad_inputs_fail_with_one_line_and_no_output() {
     let model = dir.path().join("model.json");
     // Missing session file.
     let missing = dir.path().join("nope.mcap");
-    let out = objloc(&[
-        os("train"),
-        missing.as_os_str(),
-        os("-o"),
-        model.as_os_str(),
-    ]);
-    assert_eq!(out.status.code(), Some(1));
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(
-        err.contains("nope.mcap") && err.lines().count() == 1,
-        "{err}"
-    );
+    let out = objloc(&["train", p(&missing), "-o", p(&model)], &[]);
+    let line = one_line_error(&out);
+    assert!(line.contains("nope.mcap"), "{line}");
     assert!(!model.exists());
 
     // Tree and feature options out of range, refused before any work.
@@ -355,54 +338,43 @@ fn bad_inputs_fail_with_one_line_and_no_output() {
             "--m-estimate 0 must be a positive number",
         ),
     ] {
-        let out = objloc(&[
-            os("train"),
-            unread_session(dir.path()).as_os_str(),
-            os("-o"),
-            model.as_os_str(),
-            os(flag),
-            os(value),
-        ]);
-        assert_eq!(out.status.code(), Some(1));
-        let err = String::from_utf8_lossy(&out.stderr);
-        assert!(err.trim_end() == format!("error: {expect}"), "{err}");
+        let out = objloc(
+            &[
+                "train",
+                p(&unread_session(dir.path())),
+                "-o",
+                p(&model),
+                flag,
+                value,
+            ],
+            &[],
+        );
+        assert_eq!(one_line_error(&out), format!("error: {expect}"));
         assert!(!model.exists());
     }
 
     // A session whose frames carry no label at all.
     let unlabelled = dir.path().join("unlabelled.mcap");
     write_session(&unlabelled, 3, &[Kind::Unlabelled, Kind::Unlabelled]);
-    let out = objloc(&[
-        os("train"),
-        unlabelled.as_os_str(),
-        os("-o"),
-        model.as_os_str(),
-    ]);
-    assert_eq!(out.status.code(), Some(1));
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(err.contains("no labelled frames"), "{err}");
+    let out = objloc(&["train", p(&unlabelled), "-o", p(&model)], &[]);
+    let line = one_line_error(&out);
+    assert!(line.contains("no labelled frames"), "{line}");
     assert!(!model.exists());
 
     // Only background frames: no positive tile to learn from. Training tiles: a third of
     // 2 x 960 aligned plus 2 x 2757 shifted = 640 + 5514.
     let bg = dir.path().join("bg.mcap");
     write_session(&bg, 4, &[Kind::Background, Kind::Background]);
-    let out = objloc(&[os("train"), bg.as_os_str(), os("-o"), model.as_os_str()]);
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert_eq!(out.status.code(), Some(1), "{err}");
+    let out = objloc(&["train", p(&bg), "-o", p(&model)], &[]);
+    let line = one_line_error(&out);
     assert!(
-        err.contains("none of the 6154 training tiles is positive"),
-        "{err}"
+        line.contains("none of the 6154 training tiles is positive"),
+        "{line}"
     );
 
     // Models of another version or feature spec are refused, naming the file.
     let train = train_session(dir.path());
-    ok(&objloc(&[
-        os("train"),
-        train.as_os_str(),
-        os("-o"),
-        model.as_os_str(),
-    ]));
+    ok(&objloc(&["train", p(&train), "-o", p(&model)], &[]));
     let text = std::fs::read_to_string(&model).unwrap();
     for (name, from, to, expect) in [
         (
@@ -441,17 +413,19 @@ fn bad_inputs_fail_with_one_line_and_no_output() {
         let bad = dir.path().join(name);
         std::fs::write(&bad, text.replacen(from, to, 1)).unwrap();
         let out_dir = dir.path().join("out");
-        let out = objloc(&[
-            os("predict"),
-            train.as_os_str(),
-            os("--model"),
-            bad.as_os_str(),
-            os("--out"),
-            out_dir.as_os_str(),
-        ]);
-        assert_eq!(out.status.code(), Some(1));
-        let err = String::from_utf8_lossy(&out.stderr);
-        assert!(err.contains(name) && err.contains(expect), "{err}");
+        let out = objloc(
+            &[
+                "predict",
+                p(&train),
+                "--model",
+                p(&bad),
+                "--out",
+                p(&out_dir),
+            ],
+            &[],
+        );
+        let line = one_line_error(&out);
+        assert!(line.contains(name) && line.contains(expect), "{line}");
         assert!(!out_dir.exists());
     }
 }
@@ -482,7 +456,7 @@ fn the_region_head_meets_the_tour_auc_target_the_tile_head_cannot() {
     // tell it from the same background elsewhere, its neighbourhood can (docs/tree.md).
     // Issue #4's target: tile AUC >= 0.95 on the shipped tours, default options.
     let dir = tempfile::tempdir().unwrap();
-    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let root = repo_dir();
     let rec = |name: &str| root.join("recordings").join(name);
     let mut aucs = Vec::new();
     for (train, tours) in [
@@ -497,23 +471,23 @@ fn the_region_head_meets_the_tour_auc_target_the_tile_head_cannot() {
         ("bottle-train.mcap", &["bottle-tour.mcap"][..]),
     ] {
         let model = dir.path().join(train.replace(".mcap", ".json"));
-        ok(&objloc(&[
-            os("train"),
-            rec(train).as_os_str(),
-            os("-o"),
-            model.as_os_str(),
-            os("--no-rerun"),
-        ]));
+        ok(&objloc(
+            &["train", p(&rec(train)), "-o", p(&model), "--no-rerun"],
+            &[],
+        ));
         for tour in tours {
-            let text = ok(&objloc(&[
-                os("predict"),
-                rec(tour).as_os_str(),
-                os("--model"),
-                model.as_os_str(),
-                os("--out"),
-                dir.path().join(tour).as_os_str(),
-                os("--no-rerun"),
-            ]));
+            let text = ok(&objloc(
+                &[
+                    "predict",
+                    p(&rec(tour)),
+                    "--model",
+                    p(&model),
+                    "--out",
+                    p(&dir.path().join(tour)),
+                    "--no-rerun",
+                ],
+                &[],
+            ));
             aucs.push((*tour, printed_tile_head_auc(&text), printed_auc(&text)));
         }
     }

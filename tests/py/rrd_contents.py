@@ -1,10 +1,15 @@
 """List what an .rrd recording holds, with the third-party Rerun SDK's own RRD reader.
 
 Usage: rrd_contents.py FILE.rrd
+       rrd_contents.py --entities FILE.rrd
 Prints a JSON list with one entry per chunk: entity path, static or not, row count and its
 columns. Time columns become int64 nanoseconds; Blob columns (encoded images) become
 {len, sha256} per row; other component columns are given in full, except the raw MCAP
 channel/schema records and reflected ROS messages, which are named but not listed.
+
+With --entities, prints instead one entry per entity path, its chunks merged: static (true
+when every chunk is), its column names (sorted) and the sorted values of its `log_time` and
+`frame` timelines (int64 nanoseconds and frame indices), without the component data.
 """
 
 import hashlib
@@ -29,6 +34,27 @@ def column_values(name, column):
     return column.to_pylist()
 
 
+def entities(path):
+    out = {}
+    for chunk in RrdReader(path).stream():
+        batch = chunk.to_record_batch()
+        e = out.setdefault(
+            chunk.entity_path, {"static": True, "columns": [], "log_time": [], "frame": []}
+        )
+        e["static"] = e["static"] and chunk.is_static
+        for name in batch.schema.names:
+            if not name.startswith("rerun.controls.") and name not in e["columns"]:
+                e["columns"].append(name)
+        for timeline in ("log_time", "frame"):
+            if timeline in batch.schema.names:
+                e[timeline] += column_values(timeline, batch.column(timeline))
+    for e in out.values():
+        for key in ("columns", "log_time", "frame"):
+            e[key].sort()
+    json.dump(out, sys.stdout, indent=1)
+    sys.stdout.write("\n")
+
+
 def main(path):
     chunks = []
     for chunk in RrdReader(path).stream():
@@ -51,4 +77,7 @@ def main(path):
 
 
 if __name__ == "__main__":
-    main(sys.argv[1])
+    if sys.argv[1] == "--entities":
+        entities(sys.argv[2])
+    else:
+        main(sys.argv[1])

@@ -1,12 +1,10 @@
-//! Shared test fixture: a small, complete session written through `objloc_core::io::session::SessionWriter`
-//! with known values, so tests can compare what any reader (ours or a third party's) decodes.
+//! Shared test fixture: a small, complete session written through
+//! `objloc_core::io::session::SessionWriter` with known values, so tests can compare what any
+//! reader (ours or a third party's) decodes.
 //!
 //! Invariants: every value is a constant or computed from constants here (no clock, no
 //! randomness), so two calls write byte-identical files; `Fixture` returns exactly the messages
 //! written, with the log time of each equal to its header stamp.
-#![allow(dead_code)] // each test crate uses a different part of this module
-
-pub mod pyenv;
 
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -44,6 +42,10 @@ pub const CMD_ANGULAR_Z_RADPS: f64 = 0.25;
 
 /// Everything the fixture wrote, message by message.
 #[derive(Debug, Clone)]
+#[allow(
+    dead_code,
+    reason = "the whole record of what was written; each test reads the parts it checks"
+)]
 pub struct Fixture {
     /// Header stamp (= log time) of frame k, for each k.
     pub frame_stamps_ns: Vec<i64>,
@@ -94,35 +96,77 @@ pub fn odom_pose(k: usize) -> Pose {
     }
 }
 
-/// Writes the fixture session to `path` (through `path.partial`, renamed by `finish`).
-pub fn write_fixture_session(path: &Path) -> Fixture {
-    let frame_stamps_ns: Vec<i64> = (0..FRAMES)
-        .map(|k| T0_NS + k as i64 * FRAME_PERIOD_NS)
-        .collect();
-    let pngs: Vec<Vec<u8>> = (0..FRAMES).map(|k| fixture_png(4 * k as u32)).collect();
-    let tf_static_stamp_ns = T0_NS;
-    let tf_static = TfMessage {
+/// Header stamp (= log time) of frame k: `T0_NS` plus k frame periods.
+pub fn frame_stamp_ns(k: usize) -> i64 {
+    T0_NS + k as i64 * FRAME_PERIOD_NS
+}
+
+/// The fixture camera's intrinsics, stamped at frame k.
+pub fn camera_info(k: usize) -> CameraInfo {
+    CameraInfo::pinhole(
+        Header::new(frame_stamp_ns(k), CAMERA_FRAME),
+        WIDTH_PX,
+        HEIGHT_PX,
+        FX_PX,
+        FY_PX,
+        CX_PX,
+        CY_PX,
+    )
+}
+
+/// The `/tf_static` mount `base_link -> camera_optical_frame` at `T0_NS`: the fixture's
+/// rotation and the given translation.
+pub fn mount(translation_m: [f64; 3]) -> TfMessage {
+    TfMessage {
         transforms: vec![TransformStamped {
-            header: Header::new(tf_static_stamp_ns, "base_link"),
+            header: Header::new(T0_NS, "base_link"),
             child_frame_id: CAMERA_FRAME.to_owned(),
-            translation: MOUNT_TRANSLATION_M,
+            translation: translation_m,
             rotation_xyzw: MOUNT_ROTATION_XYZW,
         }],
+    }
+}
+
+/// A `/cmd_vel` command at `T0_NS`: forward speed and yaw rate.
+pub fn cmd_vel(v_mps: f64, w_radps: f64) -> TwistStamped {
+    TwistStamped {
+        header: Header::new(T0_NS, "base_link"),
+        twist: Twist {
+            linear: [v_mps, 0.0, 0.0],
+            angular: [0.0, 0.0, w_radps],
+        },
+    }
+}
+
+/// Frame k's label of `OBJECT`: the rectangle `RECT_PX` on frame 0, none (a background frame)
+/// on any other.
+pub fn label(k: usize) -> ObjectLabel {
+    let (rx, ry, rw, rh) = RECT_PX;
+    let regions = if k == 0 {
+        vec![RegionOfInterest {
+            x_offset: rx,
+            y_offset: ry,
+            height: rh,
+            width: rw,
+            do_rectify: false,
+        }]
+    } else {
+        Vec::new()
     };
-    let camera_info: Vec<CameraInfo> = frame_stamps_ns
-        .iter()
-        .map(|&s| {
-            CameraInfo::pinhole(
-                Header::new(s, CAMERA_FRAME),
-                WIDTH_PX,
-                HEIGHT_PX,
-                FX_PX,
-                FY_PX,
-                CX_PX,
-                CY_PX,
-            )
-        })
-        .collect();
+    ObjectLabel {
+        header: Header::new(frame_stamp_ns(k), CAMERA_FRAME),
+        object: OBJECT.to_owned(),
+        regions,
+    }
+}
+
+/// Writes the fixture session to `path` (through `path.partial`, renamed by `finish`).
+pub fn write_fixture_session(path: &Path) -> Fixture {
+    let frame_stamps_ns: Vec<i64> = (0..FRAMES).map(frame_stamp_ns).collect();
+    let pngs: Vec<Vec<u8>> = (0..FRAMES).map(|k| fixture_png(4 * k as u32)).collect();
+    let tf_static_stamp_ns = T0_NS;
+    let tf_static = mount(MOUNT_TRANSLATION_M);
+    let camera_info: Vec<CameraInfo> = (0..FRAMES).map(camera_info).collect();
     let mut pose_covariance = [0.0; 36];
     pose_covariance[0] = 0.01;
     pose_covariance[35] = 0.02;
@@ -141,32 +185,8 @@ pub fn write_fixture_session(path: &Path) -> Fixture {
             twist_covariance: [0.0; 36],
         })
         .collect();
-    let cmd_vel = TwistStamped {
-        header: Header::new(T0_NS, "base_link"),
-        twist: Twist {
-            linear: [CMD_LINEAR_X_MPS, 0.0, 0.0],
-            angular: [0.0, 0.0, CMD_ANGULAR_Z_RADPS],
-        },
-    };
-    let (rx, ry, rw, rh) = RECT_PX;
-    let labels = vec![
-        ObjectLabel {
-            header: Header::new(frame_stamps_ns[0], CAMERA_FRAME),
-            object: OBJECT.to_owned(),
-            regions: vec![RegionOfInterest {
-                x_offset: rx,
-                y_offset: ry,
-                height: rh,
-                width: rw,
-                do_rectify: false,
-            }],
-        },
-        ObjectLabel {
-            header: Header::new(frame_stamps_ns[1], CAMERA_FRAME),
-            object: OBJECT.to_owned(),
-            regions: Vec::new(),
-        },
-    ];
+    let cmd_vel = cmd_vel(CMD_LINEAR_X_MPS, CMD_ANGULAR_Z_RADPS);
+    let labels: Vec<ObjectLabel> = (0..2).map(label).collect();
     // Ground truth differs from odometry by a known drift of 1/64 m per frame in y.
     let ground_truth_pose: Vec<PoseStamped> = frame_stamps_ns
         .iter()

@@ -1,24 +1,25 @@
-//! The Python venv the interop tests run third-party tools from: target/pyenv (or
-//! `$OBJLOC_PYENV`), created from tests/py/requirements.txt on first use.
+//! The Python venv the interop and Rerun tests run third-party tools from: target/pyenv (or
+//! `$OBJLOC_PYENV`), created from tests/py/requirements.txt on first use; `py_json` runs one
+//! of the scripts in tests/py with it, `rerun_cli` is its `rerun` command.
 //!
 //! Invariants: installed exactly once per requirements hash: a stamp file in the venv holds
 //! the hash, a file lock beside it keeps two test processes from installing at once, and a
 //! `OnceLock` does the same for the threads of one.
 
+use std::ffi::OsStr;
 use std::fs::File;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 use std::sync::OnceLock;
 
+use serde_json::Value;
 use sha2::{Digest, Sha256};
+
+use super::repo_dir;
 
 pub const REQUIREMENTS: &str = "tests/py/requirements.txt";
 /// Written into the venv after a successful install: the SHA-256 of requirements.txt.
 pub const STAMP_FILE: &str = "objloc-requirements.sha256";
-
-pub fn repo_dir() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-}
 
 pub fn pyenv_dir() -> PathBuf {
     std::env::var_os("OBJLOC_PYENV")
@@ -93,4 +94,26 @@ pub fn python() -> &'static Path {
         Ok(p) => p,
         Err(e) => panic!("cannot set up the Python venv for the interop tests: {e}"),
     }
+}
+
+/// The venv's `rerun` CLI (the rerun-sdk's).
+pub fn rerun_cli() -> PathBuf {
+    python().with_file_name("rerun")
+}
+
+/// Runs `tests/py/<script>` with `args` in the venv, which must succeed, and parses its stdout
+/// as JSON.
+pub fn py_json<S: AsRef<OsStr>>(script: &str, args: &[S]) -> Value {
+    let out = run_checked(
+        Command::new(python())
+            .arg(repo_dir().join("tests").join("py").join(script))
+            .args(args),
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
+    serde_json::from_slice(&out.stdout).unwrap_or_else(|e| {
+        panic!(
+            "{script} printed no JSON ({e}):\n{}",
+            String::from_utf8_lossy(&out.stdout)
+        )
+    })
 }
