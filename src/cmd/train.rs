@@ -5,9 +5,9 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::Context;
-use objloc_core::learn::dataset::{export_features, load_session};
+use objloc_core::learn::dataset::{LoadedSession, export_features, load_session};
 use objloc_core::learn::features::FeatureKind;
-use objloc_core::learn::model::{RegionConfig, TrainConfig, examples, fit_model};
+use objloc_core::learn::model::{Model, RegionConfig, TrainConfig, examples, fit_model};
 use objloc_core::learn::tree::TreeParams;
 
 use super::TopicArgs;
@@ -78,8 +78,8 @@ pub struct Args {
     rerun: crate::viz::VizArgs,
 }
 
-pub fn run(args: Args) -> anyhow::Result<()> {
-    let topics = args.topics.topics()?;
+/// The training configuration the options ask for, checked before any work.
+fn config(args: &Args) -> anyhow::Result<TrainConfig> {
     let cfg = TrainConfig {
         features: args.features,
         tile_px: args.tile_px,
@@ -136,6 +136,41 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "--base-mix {} must be in [0, 1)",
         cfg.tree.base_mix
     );
+    Ok(cfg)
+}
+
+/// The tree as a graph and the training frames with their maps, in Rerun (by default beside
+/// the model).
+fn log_to_rerun(args: &Args, model: &Model, sessions: &[LoadedSession]) -> anyhow::Result<()> {
+    let hashes: Vec<&str> = sessions.iter().map(|s| s.sha256.as_str()).collect();
+    let id = objloc_core::out::view::recording_id(
+        "train",
+        &[&hashes.join(","), &serde_json::to_string(model)?],
+    );
+    let stream = crate::viz::open_stream(
+        &args.rerun,
+        &args.output.with_extension("rrd"),
+        &id,
+        Some(crate::viz::train_blueprint()),
+    )
+    .context("train: opening the Rerun recording")?;
+    if stream.is_on() {
+        crate::viz::train::log_tree(&stream.rec, model)?;
+        crate::viz::train::log_training_frames(&stream.rec, model, sessions)?;
+    }
+    if let Some(p) = stream.finish()? {
+        println!(
+            "rerun recording: {} (open it with: {})",
+            p.display(),
+            crate::viz::open_command(&p)
+        );
+    }
+    Ok(())
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let topics = args.topics.topics()?;
+    let cfg = config(&args)?;
     let t0 = Instant::now();
     let sessions = args
         .sessions
@@ -168,31 +203,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         export_features(&set, dir).context("train: exporting features")?;
     }
     print!("{}", model.summary_table());
-    // The tree as a graph and the training frames with their maps, in Rerun (by default
-    // beside the model).
-    let hashes: Vec<&str> = sessions.iter().map(|s| s.sha256.as_str()).collect();
-    let id = objloc_core::out::view::recording_id(
-        "train",
-        &[&hashes.join(","), &serde_json::to_string(&model)?],
-    );
-    let stream = crate::viz::open_stream(
-        &args.rerun,
-        &args.output.with_extension("rrd"),
-        &id,
-        Some(crate::viz::train_blueprint()),
-    )
-    .context("train: opening the Rerun recording")?;
-    if stream.is_on() {
-        crate::viz::train::log_tree(&stream.rec, &model)?;
-        crate::viz::train::log_training_frames(&stream.rec, &model, &sessions)?;
-    }
-    if let Some(p) = stream.finish()? {
-        println!(
-            "rerun recording: {} (open it with: {})",
-            p.display(),
-            crate::viz::open_command(&p)
-        );
-    }
+    log_to_rerun(&args, &model, &sessions)?;
     println!(
         "time: load+decode {:.3} s, features {:.3} s, fit time {:.4} s{}",
         t_load.as_secs_f64(),

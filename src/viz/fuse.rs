@@ -15,7 +15,8 @@ use objloc_core::fuse::refine::Verdict;
 use objloc_core::fuse::replay::{FrameStep, Observer, ObserverError, SessionData};
 use objloc_core::io::msgs::iso_from_pose;
 use objloc_core::out::view::{
-    centroid_error_m, overlay_rgba, pyramids, summarize_grid, upscale, verdict_rgb, viridis,
+    GridSummary, centroid_error_m, overlay_rgba, pyramids, summarize_grid, upscale, verdict_rgb,
+    viridis,
 };
 use objloc_core::types::geometry::{Iso3, yaw_of};
 use objloc_core::types::image::Rgb8;
@@ -258,7 +259,6 @@ impl FuseViz {
 
     fn frame(&mut self, data: &SessionData, step: &FrameStep, grid: &Grid) -> Result<(), VizError> {
         let rec = &self.rec;
-        let o = &self.options;
         rec.set_time(
             TIMELINE_LOG_TIME,
             rerun::TimeCell::from_timestamp_nanos_since_epoch(
@@ -266,7 +266,17 @@ impl FuseViz {
             ),
         );
         rec.set_time_sequence(TIMELINE_FRAME, step.index as i64);
+        self.tracks(data, step)?;
+        self.refinement(step)?;
+        log_frame_and_probs(&self.rec, "world/robot/camera", &step.image, &step.probs)?;
+        self.pyramids(data, step)?;
+        let s = self.grid(grid)?;
+        self.objects(data, step, &s)
+    }
 
+    /// The robot's pose and the /odom and true tracks up to the frame.
+    fn tracks(&self, data: &SessionData, step: &FrameStep) -> Result<(), VizError> {
+        let rec = &self.rec;
         rec.log("world/robot", &transform(&step.odom_from_base))
             .map_err(log_err)?;
         let stamp = step.frame.stamp_ns;
@@ -290,6 +300,12 @@ impl FuseViz {
             .map_err(log_err)?;
         }
 
+        Ok(())
+    }
+
+    /// The refined track (each position coloured by its verdict), the verdict's text line and
+    /// the correction's plots.
+    fn refinement(&mut self, step: &FrameStep) -> Result<(), VizError> {
         let t = step.odom_from_base.translation.vector;
         let here = [t.x as f32, t.y as f32, t.z as f32];
         if self.first_position.is_none() {
@@ -298,7 +314,7 @@ impl FuseViz {
         if let Some(c) = &step.correction {
             if self.refined_track.is_empty() {
                 for track in REFINED_TRACKS {
-                    in_world_frame(rec, track)?;
+                    in_world_frame(&self.rec, track)?;
                 }
                 if let Some(first) = self.first_position.filter(|_| step.index > 0) {
                     self.refined_track.push(first);
@@ -313,18 +329,20 @@ impl FuseViz {
             let [r, g, b] = verdict_rgb(c.outcome);
             self.refined_colors.push(rerun::Color::from_rgb(r, g, b));
             let color = rerun::Color::from_rgb(REFINED_RGB[0], REFINED_RGB[1], REFINED_RGB[2]);
-            rec.log(
-                REFINED_TRACKS[0],
-                &rerun::LineStrips3D::new([self.refined_track.clone()]).with_colors([color]),
-            )
-            .map_err(log_err)?;
-            rec.log(
-                REFINED_TRACKS[1],
-                &rerun::Points3D::new(self.refined_track.clone())
-                    .with_colors(self.refined_colors.clone())
-                    .with_radii([0.03]),
-            )
-            .map_err(log_err)?;
+            self.rec
+                .log(
+                    REFINED_TRACKS[0],
+                    &rerun::LineStrips3D::new([self.refined_track.clone()]).with_colors([color]),
+                )
+                .map_err(log_err)?;
+            self.rec
+                .log(
+                    REFINED_TRACKS[1],
+                    &rerun::Points3D::new(self.refined_track.clone())
+                        .with_colors(self.refined_colors.clone())
+                        .with_radii([0.03]),
+                )
+                .map_err(log_err)?;
             let level = match c.outcome {
                 Verdict::Accepted | Verdict::Insignificant | Verdict::NoEvidence => {
                     rerun::TextLogLevel::INFO
@@ -332,7 +350,7 @@ impl FuseViz {
                 Verdict::Ambiguous | Verdict::Gated => rerun::TextLogLevel::WARN,
                 Verdict::RolledBack => rerun::TextLogLevel::ERROR,
             };
-            rec.log(
+            self.rec.log(
                 VERDICT_LOG,
                 &rerun::TextLog::new(format!(
                     "frame {}: {} (gain {:.1}, {} landmark(s), {} floor cells, total chi-square {:.1})",
@@ -348,17 +366,21 @@ impl FuseViz {
             )
             .map_err(log_err)?;
             let o = step.odometry.translation.vector;
-            scalar(rec, "plots/correction_m", (t - o).xy().norm())?;
+            scalar(&self.rec, "plots/correction_m", (t - o).xy().norm())?;
             scalar(
-                rec,
+                &self.rec,
                 "plots/correction_deg",
                 yaw_of(&(step.odometry.inverse() * step.odom_from_base)).to_degrees(),
             )?;
-            scalar(rec, "counts/landmarks", c.anchors as f64)?;
-            scalar(rec, "counts/floor_cells", c.floor_cells as f64)?;
+            scalar(&self.rec, "counts/landmarks", c.anchors as f64)?;
+            scalar(&self.rec, "counts/floor_cells", c.floor_cells as f64)?;
         }
-        log_frame_and_probs(rec, "world/robot/camera", &step.image, &step.probs)?;
+        Ok(())
+    }
 
+    /// The pyramids of the frame's confident tiles.
+    fn pyramids(&self, data: &SessionData, step: &FrameStep) -> Result<(), VizError> {
+        let (rec, o) = (&self.rec, &self.options);
         let strips = pyramids(
             &data.camera,
             &step.odom_from_camera,
@@ -381,6 +403,12 @@ impl FuseViz {
         )
         .map_err(log_err)?;
 
+        Ok(())
+    }
+
+    /// The belief's shown cells and its three projections; returns the summary.
+    fn grid(&self, grid: &Grid) -> Result<GridSummary, VizError> {
+        let (rec, o) = (&self.rec, &self.options);
         let s = summarize_grid(grid, o.grid_min_posterior, o.grid_min_views);
         let v = grid.spec.voxel_size_m as f32;
         let origin = grid.spec.origin_m;
@@ -399,6 +427,17 @@ impl FuseViz {
         projection(rec, "projections/y", &s.along_y, nx, nz)?;
         projection(rec, "projections/z", &s.along_z, nx, ny)?;
 
+        Ok(s)
+    }
+
+    /// The objects found after the frame and the whole-grid plots.
+    fn objects(
+        &self,
+        data: &SessionData,
+        step: &FrameStep,
+        s: &GridSummary,
+    ) -> Result<(), VizError> {
+        let rec = &self.rec;
         let objects = &step.objects;
         let boxes = rerun::Boxes3D::from_mins_and_sizes(
             objects.iter().map(|b| b.bbox_min_m.map(|x| x as f32)),

@@ -72,7 +72,9 @@ mod layout {
         let end = (0..lines.len())
             .find(|&i| {
                 lines[i].trim() == "#[cfg(test)]"
-                    && lines.get(i + 1).is_some_and(|l| l.trim_start().starts_with("mod "))
+                    && lines
+                        .get(i + 1)
+                        .is_some_and(|l| l.trim_start().starts_with("mod "))
             })
             .unwrap_or(lines.len());
         lines[..end]
@@ -102,7 +104,13 @@ mod layout {
         let mut bad = Vec::new();
         for f in &files {
             let rel = f.strip_prefix(&src).unwrap();
-            let folder = rel.components().next().unwrap().as_os_str().to_str().unwrap();
+            let folder = rel
+                .components()
+                .next()
+                .unwrap()
+                .as_os_str()
+                .to_str()
+                .unwrap();
             let Some((_, allowed)) = RULES.iter().find(|(d, _)| *d == folder) else {
                 continue;
             };
@@ -116,7 +124,11 @@ mod layout {
                 }
             }
         }
-        assert!(bad.is_empty(), "imports against the layout:\n{}", bad.join("\n"));
+        assert!(
+            bad.is_empty(),
+            "imports against the layout:\n{}",
+            bad.join("\n")
+        );
     }
 
     #[test]

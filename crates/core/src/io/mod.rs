@@ -5,6 +5,7 @@
 //!
 //! May import: [`crate::types`].
 
+pub mod capture;
 pub mod cdr;
 pub mod import;
 pub mod inspect;

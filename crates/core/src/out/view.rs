@@ -363,5 +363,4 @@ mod tests {
         assert!(a.starts_with("objloc-fuse-"));
         assert_eq!(a.len(), "objloc-fuse-".len() + 32);
     }
-
 }

@@ -112,8 +112,7 @@ impl Rectifier {
         for v in 0..h {
             for u in 0..w {
                 // Pixel centres at +0.5 (geometry's convention); the source's at +0.5 too.
-                let (su, sv) =
-                    distorted_pixel(camera, d, f64::from(u) + 0.5, f64::from(v) + 0.5);
+                let (su, sv) = distorted_pixel(camera, d, f64::from(u) + 0.5, f64::from(v) + 0.5);
                 let (fx, fy) = (su - 0.5, sv - 0.5);
                 let inside = fx >= 0.0
                     && fy >= 0.0
@@ -148,11 +147,11 @@ impl Rectifier {
             }
             let i = i as usize * 3;
             let (ax, ay) = (u32::from(ax), u32::from(ay));
-            for c in 0..3 {
+            for (c, out) in o.iter_mut().enumerate() {
                 let p = |k: usize| u32::from(img.data[k + c]);
                 let top = p(i) * (256 - ax) + p(i + 3) * ax;
                 let bottom = p(i + w * 3) * (256 - ax) + p(i + w * 3 + 3) * ax;
-                o[c] = ((top * (256 - ay) + bottom * ay + 32768) >> 16) as u8;
+                *out = ((top * (256 - ay) + bottom * ay + 32768) >> 16) as u8;
             }
         }
         Rgb8 {
@@ -177,12 +176,19 @@ mod tests {
             p1: 0.011019,
             p2: 0.009578,
         };
-        let cam = Camera::from_k(605, 806, [627.8, 0.0, 318.8, 0.0, 616.5, 395.3, 0.0, 0.0, 1.0])
-            .unwrap();
+        let cam = Camera::from_k(
+            605,
+            806,
+            [627.8, 0.0, 318.8, 0.0, 616.5, 395.3, 0.0, 0.0, 1.0],
+        )
+        .unwrap();
         for (u, v) in [(0.0, 0.0), (604.0, 805.0), (300.0, 400.0), (10.0, 790.0)] {
             let (iu, iv) = undistorted_pixel(&cam, &d, u, v);
             let (bu, bv) = distorted_pixel(&cam, &d, iu, iv);
-            assert!((bu - u).abs() < 1e-6 && (bv - v).abs() < 1e-6, "{u},{v} -> {bu},{bv}");
+            assert!(
+                (bu - u).abs() < 1e-6 && (bv - v).abs() < 1e-6,
+                "{u},{v} -> {bu},{bv}"
+            );
         }
         // Hand-computed: x = 0.5, y = 0 with k1 = 0.1 only: r^2 = 0.25, x_d = 0.5 * 1.025.
         let k1 = Distortion {
