@@ -7,7 +7,9 @@ use std::path::PathBuf;
 use anyhow::Context;
 use indicatif::{ProgressBar, ProgressStyle};
 
+use objloc_core::io::import::PoseFile;
 use objloc_core::sim::{Kind, SimOptions, SpeedNoise};
+use objloc_core::types::lens::Distortion;
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
@@ -19,7 +21,8 @@ pub struct Args {
 enum Source {
     /// Render a built-in or file scene from a simulated robot (byte-identical for a seed).
     Sim(SimArgs),
-    /// Import a real image sequence with a TUM RGB-D trajectory and optional CSV labels.
+    /// Import a real posed image sequence (TUM trajectory, NeRF, COLMAP, LLFF or IDR poses)
+    /// with optional labels (CSV or masks).
     Import(ImportArgs),
 }
 
@@ -66,24 +69,122 @@ struct SimArgs {
 }
 
 #[derive(Debug, clap::Args)]
+#[command(group(
+    clap::ArgGroup::new("poses")
+        .required(true)
+        .args(["trajectory", "nerf", "colmap", "llff", "idr"])
+))]
 struct ImportArgs {
-    /// Directory of images (png, jpeg), taken in file-name order.
-    #[arg(long, value_name = "DIR")]
-    images: PathBuf,
+    /// Directory of images (png, jpeg). TUM: taken in file-name order; COLMAP: the folder the
+    /// model's image names are relative to; LLFF and IDR: one image per pose row, by name.
+    #[arg(long, value_name = "DIR", required_unless_present = "nerf")]
+    images: Option<PathBuf>,
     /// TUM RGB-D trajectory: `timestamp tx ty tz qx qy qz qw` per line (camera in world).
+    #[arg(long, value_name = "FILE", requires = "camera")]
+    trajectory: Option<PathBuf>,
+    /// With --trajectory: pinhole intrinsics in pixels.
+    #[arg(long, value_name = "FX,FY,CX,CY", requires = "trajectory")]
+    camera: Option<String>,
+    /// With --trajectory: OpenCV radial-tangential lens distortion (plumb_bob).
+    #[arg(
+        long,
+        value_name = "K1,K2,P1,P2[,K3]",
+        requires = "trajectory",
+        allow_hyphen_values = true
+    )]
+    distortion: Option<String>,
+    /// NeRF / instant-ngp / nerfstudio transforms.json (OpenGL camera axes; image paths
+    /// relative to it).
     #[arg(long, value_name = "FILE")]
-    trajectory: PathBuf,
-    /// Pinhole intrinsics in pixels.
-    #[arg(long, value_name = "FX,FY,CX,CY")]
-    camera: String,
-    /// CSV `image,x,y,width,height`; a row with an empty box marks a background frame.
+    nerf: Option<PathBuf>,
+    /// COLMAP model folder: cameras.txt + images.txt, or cameras.bin + images.bin.
+    #[arg(long, value_name = "DIR")]
+    colmap: Option<PathBuf>,
+    /// LLFF poses_bounds.npy (rows in the images' string order).
     #[arg(long, value_name = "FILE")]
+    llff: Option<PathBuf>,
+    /// IDR / NeuS / DTU cameras.npz (world_mat_i for the i-th image by name).
+    #[arg(long, value_name = "FILE")]
+    idr: Option<PathBuf>,
+    /// With --idr: the images are this region of the calibrated image, scaled to their size.
+    #[arg(long, value_name = "X,Y,W,H", requires = "idr")]
+    crop: Option<String>,
+    /// CSV `image,x,y,width,height[,object]`; a row with an empty box marks a background
+    /// frame; several rows per image for several objects.
+    #[arg(long, value_name = "FILE", conflicts_with = "masks")]
     labels: Option<PathBuf>,
-    /// Object name written on /labels.
+    /// Folder of masks (`<stem>.png`, `<stem>-...png`, `<stem>_...png` for image `<stem>.*`):
+    /// each labels its image with the rectangle around its foreground (alpha, else luminance).
+    #[arg(long, value_name = "DIR")]
+    masks: Option<PathBuf>,
+    /// Object name written on /labels for rows (and masks) that name none.
     #[arg(long, default_value = "object")]
     object: String,
     #[arg(short, long)]
     output: PathBuf,
+}
+
+/// The pose source the options name (clap has checked that exactly one is given).
+fn pose_file(a: &ImportArgs) -> anyhow::Result<PoseFile> {
+    let images = || {
+        a.images
+            .clone()
+            .ok_or_else(|| anyhow::anyhow!("give --images DIR"))
+    };
+    Ok(if let Some(trajectory) = &a.trajectory {
+        let camera = a
+            .camera
+            .as_deref()
+            .ok_or_else(|| anyhow::anyhow!("--trajectory needs --camera FX,FY,CX,CY"))?;
+        PoseFile::Tum {
+            trajectory: trajectory.clone(),
+            images: images()?,
+            camera: floats::<4>(camera, "--camera")?,
+            distortion: match &a.distortion {
+                Some(d) => distortion(d)?,
+                None => Distortion::default(),
+            },
+        }
+    } else if let Some(transforms) = &a.nerf {
+        PoseFile::Nerf {
+            transforms: transforms.clone(),
+        }
+    } else if let Some(model) = &a.colmap {
+        PoseFile::Colmap {
+            model: model.clone(),
+            images: images()?,
+        }
+    } else if let Some(poses_bounds) = &a.llff {
+        PoseFile::Llff {
+            poses_bounds: poses_bounds.clone(),
+            images: images()?,
+        }
+    } else if let Some(cameras) = &a.idr {
+        PoseFile::Idr {
+            cameras: cameras.clone(),
+            images: images()?,
+            crop: a
+                .crop
+                .as_deref()
+                .map(|c| floats::<4>(c, "--crop"))
+                .transpose()?,
+        }
+    } else {
+        anyhow::bail!("give one of --trajectory, --nerf, --colmap, --llff, --idr");
+    })
+}
+
+/// `K1,K2,P1,P2[,K3]` as a distortion.
+fn distortion(s: &str) -> anyhow::Result<Distortion> {
+    let v = match floats::<5>(s, "--distortion") {
+        Ok(v) => v,
+        Err(_) => {
+            let [k1, k2, p1, p2] = floats::<4>(s, "--distortion")
+                .map_err(|_| anyhow::anyhow!("--distortion {s:?} is not K1,K2,P1,P2[,K3]"))?;
+            [k1, k2, p1, p2, 0.0]
+        }
+    };
+    Ok(Distortion::from_plumb_bob(&v))
 }
 
 fn floats<const N: usize>(s: &str, what: &str) -> anyhow::Result<[f64; N]> {
@@ -152,12 +253,10 @@ fn run_sim(a: SimArgs) -> anyhow::Result<()> {
 }
 
 fn run_import(a: ImportArgs) -> anyhow::Result<()> {
-    let camera = floats::<4>(&a.camera, "--camera")?;
     let opts = objloc_core::io::import::ImportOptions {
-        images: a.images,
-        trajectory: a.trajectory,
-        camera,
+        poses: pose_file(&a)?,
         labels: a.labels,
+        masks: a.masks,
         object: a.object,
     };
     let bar = progress_bar();
@@ -179,5 +278,11 @@ fn run_import(a: ImportArgs) -> anyhow::Result<()> {
             "in order"
         }
     );
+    if stats.distorted > 0 {
+        eprintln!(
+            "{} frames carry lens distortion (CameraInfo d, plumb_bob); the replay rectifies them",
+            stats.distorted
+        );
+    }
     Ok(())
 }

@@ -72,9 +72,11 @@ pub struct FloorPatch {
 }
 
 impl FloorPatch {
+    /// Number of floor cells in the patch (the length of each of its vectors).
     pub fn len(&self) -> usize {
         self.points_m.len()
     }
+    /// Whether the patch has no cell: the frame shows no usable floor.
     pub fn is_empty(&self) -> bool {
         self.points_m.is_empty()
     }

@@ -21,26 +21,53 @@ pub const MAX_GRID_BYTES: u64 = 4 << 30;
 /// f64 scratch buffers.
 pub const BYTES_PER_CELL: u64 = 4 + 2 + 4 + 8 + 8;
 
+/// Why a grid cannot be built from its options; checked before anything is allocated.
 #[derive(Debug, Error, Clone, PartialEq)]
 pub enum GridError {
+    /// The bounds are not finite, or min is not below max on every axis.
     #[error("bounds min {min:?} must be below max {max:?} on every axis, all finite")]
-    Bounds { min: [f64; 3], max: [f64; 3] },
+    Bounds {
+        /// Requested min corner in `odom`, metres.
+        min: [f64; 3],
+        /// Requested max corner in `odom`, metres.
+        max: [f64; 3],
+    },
+    /// The voxel size is not positive and finite.
     #[error("voxel size {voxel_size_m} m must be positive and finite")]
-    Voxel { voxel_size_m: f64 },
+    Voxel {
+        /// Requested cell edge length, metres.
+        voxel_size_m: f64,
+    },
+    /// The grid's buffers would need more than [`MAX_GRID_BYTES`].
     #[error(
         "a grid of {nx} x {ny} x {nz} cells would need {needed_mib} MiB, over the limit of {limit_mib} MiB; use a larger --voxel or smaller --bounds"
     )]
     TooLarge {
+        /// Cells along x the bounds need at this voxel size.
         nx: u64,
+        /// Cells along y.
         ny: u64,
+        /// Cells along z.
         nz: u64,
+        /// Memory the grid would take ([`BYTES_PER_CELL`] per cell), MiB, rounded up.
         needed_mib: u64,
+        /// [`MAX_GRID_BYTES`] in MiB.
         limit_mib: u64,
     },
+    /// The prior probability is not strictly between 0 and 1.
     #[error("prior {prior} must lie strictly between 0 and 1")]
-    Prior { prior: f64 },
+    Prior {
+        /// The requested prior probability.
+        prior: f64,
+    },
+    /// The probability clamp does not satisfy 0 < lo < hi < 1.
     #[error("clamp bounds {lo} and {hi} must satisfy 0 < lo < hi < 1")]
-    Clamp { lo: f64, hi: f64 },
+    Clamp {
+        /// Requested lower bound, probability.
+        lo: f64,
+        /// Requested upper bound, probability.
+        hi: f64,
+    },
 }
 
 /// Where the grid is and how fine.
@@ -48,7 +75,9 @@ pub enum GridError {
 pub struct GridSpec {
     /// Min corner of cell (0, 0, 0) in `odom`, metres.
     pub origin_m: [f64; 3],
+    /// Edge length of a (cubic) cell, metres; positive and finite.
     pub voxel_size_m: f64,
+    /// Cells along x, y, z (nx, ny, nz); each at least 1 from [`GridSpec::from_bounds`].
     pub dims: [usize; 3],
 }
 
@@ -82,10 +111,12 @@ impl GridSpec {
         })
     }
 
+    /// Number of cells, nx * ny * nz (the length of every per-cell buffer).
     pub fn cells(&self) -> usize {
         self.dims[0] * self.dims[1] * self.dims[2]
     }
 
+    /// Flat index of cell (i, j, k): `(i * ny + j) * nz + k` (C order).
     #[inline]
     pub fn index(&self, i: usize, j: usize, k: usize) -> usize {
         (i * self.dims[1] + j) * self.dims[2] + k
@@ -121,10 +152,12 @@ impl GridSpec {
     }
 }
 
+/// Log-odds ln(p / (1 - p)) of a probability p; infinite at 0 and 1.
 pub fn logit(p: f64) -> f64 {
     (p / (1.0 - p)).ln()
 }
 
+/// Probability 1 / (1 + e^-l) of log-odds `l`, in [0, 1]; the inverse of [`logit`].
 pub fn sigmoid(l: f64) -> f64 {
     1.0 / (1.0 + (-l).exp())
 }
@@ -133,8 +166,12 @@ pub fn sigmoid(l: f64) -> f64 {
 /// `delta = logit(p) - logit(prior)`, so that `log-odds' = log-odds + delta`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct TileEvidence {
+    /// Whole tiles down the image.
     pub rows: usize,
+    /// Whole tiles across the image.
     pub cols: usize,
+    /// Side of a square tile, pixels: tile (r, c) covers pixels u in [c, c + 1) * tile_px and
+    /// v in [r, r + 1) * tile_px.
     pub tile_px: u32,
     /// Row-major, `delta[r * cols + c]`.
     pub delta: Vec<f32>,
@@ -171,7 +208,9 @@ impl TileEvidence {
 /// The belief grid.
 #[derive(Debug, Clone)]
 pub struct Grid {
+    /// Where the grid lies in `odom` and how its cells are laid out.
     pub spec: GridSpec,
+    /// Prior probability of every cell, in (0, 1); each cell starts at its log-odds.
     pub prior: f64,
     /// Log-odds of each cell.
     pub log_odds: Vec<f32>,
@@ -182,6 +221,8 @@ pub struct Grid {
 }
 
 impl Grid {
+    /// A grid at the prior everywhere, no views, no clamp; [`GridError::Prior`] unless
+    /// 0 < `prior` < 1.
     pub fn new(spec: GridSpec, prior: f64) -> Result<Self, GridError> {
         if !(prior > 0.0 && prior < 1.0) {
             return Err(GridError::Prior { prior });
@@ -196,6 +237,7 @@ impl Grid {
         })
     }
 
+    /// The prior as log-odds, f32 like the cells: the value of a cell no frame has updated.
     pub fn prior_log_odds(&self) -> f32 {
         logit(self.prior) as f32
     }

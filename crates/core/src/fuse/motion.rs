@@ -38,7 +38,9 @@ const MAX_SAMPLES_PER_SIDE: usize = 256;
 /// One constant command between two instants, from /cmd_vel.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Segment {
+    /// Start of the segment, ns (the /cmd_vel header stamp clock).
     pub start_ns: i64,
+    /// End of the segment, ns (same clock), after `start_ns`.
     pub end_ns: i64,
     /// Nominal forward speed, m/s.
     pub v_mps: f64,
@@ -47,6 +49,7 @@ pub struct Segment {
 }
 
 impl Segment {
+    /// Length of the segment, seconds.
     pub fn duration_s(&self) -> f64 {
         (self.end_ns - self.start_ns) as f64 * 1e-9
     }
@@ -122,7 +125,9 @@ pub mod kernel {
     pub trait Sample:
         Copy + Send + Sync + std::ops::AddAssign + std::ops::Mul<Output = Self> + 'static
     {
+        /// The additive identity.
         const ZERO: Self;
+        /// A value computed in f64, converted (rounded, for f32).
         fn from_f64(x: f64) -> Self;
     }
     impl Sample for f64 {

@@ -18,6 +18,8 @@ use serde::{Deserialize, Serialize};
 
 use crate::fuse::grid::{Grid, sigmoid};
 
+/// The rule that turns the belief into objects (see the module doc): hysteresis on evidence
+/// relative to the grid's peak, among cells seen often enough.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct ObjectParams {
     /// Frames that must have seen a cell before it can belong to an object.
@@ -66,10 +68,16 @@ pub struct Object {
     /// Probability-weighted mean of the object's cell centres in `odom`, metres (its centre
     /// of mass). Pose refinement and nesting use this: it is where the views' rays meet.
     pub mass_centroid_m: [f64; 3],
+    /// Min corner of the axis-aligned box around the object's cells (their faces), `odom`, metres.
     pub bbox_min_m: [f64; 3],
+    /// Max corner of that box, `odom`, metres.
     pub bbox_max_m: [f64; 3],
+    /// Grid cells in the object (at least [`ObjectParams::min_cells`]).
     pub cells: usize,
+    /// Highest posterior probability among its cells, in [0, 1].
     pub peak_probability: f64,
+    /// Mean posterior probability of its cells, in [0, 1]; times `cells`, the object's probability
+    /// mass (objects are sorted by it).
     pub mean_probability: f64,
     /// Highest log-odds in the component (probabilities saturate at 1 in print).
     pub peak_log_odds: f64,
@@ -213,6 +221,8 @@ pub fn find_objects_with_cells(grid: &Grid, params: &ObjectParams) -> Vec<(Objec
 /// the box within its footprint: two instances of one object have similar sizes and keep
 /// apart however close they stand.
 pub const FRAGMENT_RATIO: usize = 5;
+/// How far, in cells, beside a larger component's box a fragment's centroid may lie (see
+/// [`FRAGMENT_RATIO`]).
 pub const FRAGMENT_MARGIN_CELLS: f64 = 3.0;
 
 /// Merges every component whose centroid lies inside the bounding box of a larger one into

@@ -28,27 +28,45 @@ use crate::types::image::Rgb8;
 /// Allowed tile sides: a tile must hold at least 4 pixels, and counts fit u16 up to 255.
 pub const TILE_PX_RANGE: std::ops::RangeInclusive<u32> = 2..=128;
 
+/// Why examples cannot be built from sessions.
 #[derive(Debug, Error)]
 pub enum DatasetError {
     /// Boxed: session errors are large and this one travels up every `Result`.
     #[error(transparent)]
     Session(Box<SessionError>),
+    /// A frame's image does not decode.
     #[error("{at}: frame does not decode: {source}")]
     Frame {
+        /// Where the frame is: the session's path, the topic and the log time.
         at: At,
+        /// The decoding error.
         #[source]
         source: crate::io::session::FrameError,
     },
+    /// No frame of the session has a label (one naming `object`, when given).
     #[error("{}: no frame has a label on {topic}{}", path.display(), object.as_ref().map(|o| format!(" for object {o:?}")).unwrap_or_default())]
     NoLabelledFrames {
+        /// The session file.
         path: PathBuf,
+        /// The labels topic that was read.
         topic: String,
+        /// The object whose labels were asked for (None: any).
         object: Option<String>,
     },
+    /// The tile side is outside [`TILE_PX_RANGE`].
     #[error("tile size {tile_px} px is outside {}..={} px", TILE_PX_RANGE.start(), TILE_PX_RANGE.end())]
-    TileSize { tile_px: u32 },
+    TileSize {
+        /// The requested tile side, px.
+        tile_px: u32,
+    },
+    /// The training stride is 0 or larger than the tile.
     #[error("train stride {stride_px} px must be 1 to the tile size {tile_px} px")]
-    Stride { stride_px: u32, tile_px: u32 },
+    Stride {
+        /// The requested shift between the extra training grids, px.
+        stride_px: u32,
+        /// The tile side, px.
+        tile_px: u32,
+    },
 }
 
 impl From<SessionError> for DatasetError {
@@ -60,8 +78,11 @@ impl From<SessionError> for DatasetError {
 /// One frame of a session, decoded, with its label rectangles if it has a label.
 #[derive(Debug, Clone)]
 pub struct SessionFrame {
+    /// Header stamp, ns since the Unix epoch; labels with the same stamp are this frame's.
     pub stamp_ns: i64,
+    /// MCAP log time of the frame's message, ns since the Unix epoch.
     pub log_time_ns: u64,
+    /// The frame decoded to RGB.
     pub image: Rgb8,
     /// None = no label for this frame; Some(empty) = a background frame.
     pub regions: Option<Vec<RegionOfInterest>>,
@@ -70,9 +91,11 @@ pub struct SessionFrame {
 /// A session read for training or prediction.
 #[derive(Debug, Clone)]
 pub struct LoadedSession {
+    /// The file the session was read from.
     pub path: PathBuf,
     /// Hex SHA-256 of the file's bytes.
     pub sha256: String,
+    /// Its decoded frames in session order (with `labelled_only`, only those with a label).
     pub frames: Vec<SessionFrame>,
 }
 
@@ -172,12 +195,16 @@ pub fn tile_labels(
     out
 }
 
+/// How labelled frames are cut into examples (see the module doc).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct ExampleParams {
+    /// Colour quantisation of the tile histograms.
     pub features: FeatureKind,
+    /// Side of a square tile, px; must lie in [`TILE_PX_RANGE`].
     pub tile_px: u32,
     /// Shift between the extra training grids; = tile_px for the aligned grid only.
     pub train_stride_px: u32,
+    /// Seed of the stratified shuffle of the aligned-grid tiles into thirds.
     pub seed: u64,
     /// Radius in tiles of the neighbourhood histogram appended to each tile's
     /// ([`crate::learn::features::with_context`]); 0 = the tile alone.
@@ -185,6 +212,7 @@ pub struct ExampleParams {
 }
 
 impl ExampleParams {
+    /// Checks that `tile_px` lies in [`TILE_PX_RANGE`] and `train_stride_px` in 1..=`tile_px`.
     pub fn validate(&self) -> Result<(), DatasetError> {
         if !TILE_PX_RANGE.contains(&self.tile_px) {
             return Err(DatasetError::TileSize {
@@ -223,7 +251,9 @@ pub fn assign_thirds(labels: &[bool], seed: u64) -> Vec<Third> {
 pub struct ExampleSet {
     /// The aligned-grid tiles (indices `0..aligned`) then the shifted-grid tiles.
     pub examples: Examples,
+    /// Number of aligned-grid tiles; only they are in the test and pruning thirds.
     pub aligned: usize,
+    /// Frames with a label (background frames included) the examples were cut from.
     pub labelled_frames: usize,
 }
 

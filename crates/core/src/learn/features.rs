@@ -13,8 +13,11 @@ pub const HIST_BINS: usize = 256;
 
 /// A per-pixel colour quantisation whose per-tile histogram is the tile's feature vector.
 pub trait TileFeature {
+    /// Lowercase name, as the model file and the command line spell it.
     fn name(&self) -> &'static str;
+    /// Number of bins; [`TileFeature::bin`] returns less than this.
     fn bins(&self) -> usize;
+    /// Bin of one pixel's (r, g, b) colour, in `0..bins()`.
     fn bin(&self, rgb: [u8; 3]) -> usize;
     /// The bin in words, for printing what a tree split tests.
     fn describe_bin(&self, bin: usize) -> String {
@@ -46,6 +49,7 @@ pub enum FeatureKind {
 }
 
 impl FeatureKind {
+    /// The implementation of this kind of feature.
     pub fn feature(self) -> &'static dyn TileFeature {
         match self {
             FeatureKind::Rgb332 => &Rgb332,
@@ -197,14 +201,21 @@ impl TileFeature for Hsv {
 /// Per-tile histograms of one grid: `counts[t * bins + b]` = pixels of tile t in bin b.
 #[derive(Debug, Clone, PartialEq)]
 pub struct TileHistograms {
+    /// Whole tiles down the image (rows of the grid).
     pub rows: usize,
+    /// Whole tiles across the image (columns of the grid).
     pub cols: usize,
+    /// Side of a square tile, px.
     pub tile_px: u32,
+    /// Counts per tile: the feature's bins, doubled by [`with_context`] with a neighbourhood.
     pub bins: usize,
+    /// Pixel counts, `rows * cols * bins`, tiles row-major; the bins of a tile's own histogram sum
+    /// to `tile_px * tile_px`.
     pub counts: Vec<u16>,
 }
 
 impl TileHistograms {
+    /// The `bins` counts of tile `t` (row-major index).
     pub fn tile(&self, t: usize) -> &[u16] {
         &self.counts[t * self.bins..(t + 1) * self.bins]
     }

@@ -32,74 +32,126 @@ pub const MODEL_VERSION: u32 = 2;
 /// Largest neighbourhood radius a model may ask for (a 9 x 9 window of tiles).
 pub const MAX_CONTEXT_TILES: u32 = 4;
 
+/// Why a model cannot be loaded, saved, trained or used for prediction.
 #[derive(Debug, Error)]
 pub enum ModelError {
+    /// Reading or writing a file failed.
     #[error("{}: {source}", path.display())]
     Io {
+        /// The file.
         path: PathBuf,
+        /// The I/O error.
         #[source]
         source: std::io::Error,
     },
+    /// The file is not JSON of a model's layout (or the model does not serialize).
     #[error("{}: not a model file: {source}", path.display())]
     Json {
+        /// The file.
         path: PathBuf,
+        /// The JSON error.
         #[source]
         source: serde_json::Error,
     },
+    /// The file's `version` is not [`MODEL_VERSION`].
     #[error("{}: model version {found} is not supported (this objloc reads version {MODEL_VERSION}); retrain with `objloc train`", path.display())]
-    Version { path: PathBuf, found: String },
+    Version {
+        /// The model file.
+        path: PathBuf,
+        /// The version found, or `(none)`.
+        found: String,
+    },
+    /// An inconsistent spec (feature kind, tile size, context radius, base rate, region head), or
+    /// frames of different sizes in a session to predict.
     #[error("{}: {what}", path.display())]
-    Spec { path: PathBuf, what: String },
+    Spec {
+        /// The model file, or the session when predicting.
+        path: PathBuf,
+        /// What is wrong, in words.
+        what: String,
+    },
+    /// The tree (the tile head's or the region head's) fails [`Tree::validate`].
     #[error("{}: invalid tree: {source}", path.display())]
     Tree {
+        /// The model file.
         path: PathBuf,
+        /// The invariant the tree breaks.
         #[source]
         source: TreeError,
     },
+    /// Examples could not be built from the sessions.
     #[error(transparent)]
     Dataset(#[from] crate::learn::dataset::DatasetError),
+    /// The tree could not be fitted to the examples.
     #[error("training failed: {0}")]
     Fit(TreeError),
+    /// No training examples: no session has a labelled frame.
     #[error("no labelled frames in {sessions} session(s): nothing to train on")]
-    NoExamples { sessions: usize },
+    NoExamples {
+        /// Sessions read.
+        sessions: usize,
+    },
+    /// No training tile is positive: the label rectangles are all smaller than a tile.
     #[error(
         "none of the {examples} training tiles is positive (fully inside a label rectangle): nothing to learn; labelled rectangles must be at least one tile ({tile_px} px) wide and high"
     )]
-    NoPositives { examples: usize, tile_px: u32 },
+    NoPositives {
+        /// Tiles in the training third.
+        examples: usize,
+        /// The tile side, px.
+        tile_px: u32,
+    },
 }
 
+/// A training session and the hash of its bytes.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct SessionHash {
+    /// Path of the session, as given to training.
     pub path: String,
+    /// Hex SHA-256 of the session file's bytes.
     pub sha256: String,
 }
 
+/// Examples of one third and how many of them are positive.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub struct ThirdCount {
+    /// Tiles in the third.
     pub examples: usize,
+    /// Of them, the tiles lying fully inside a label rectangle.
     pub positives: usize,
 }
 
+/// The examples a head was trained on, per third.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub struct ExampleCounts {
     /// Training third of the aligned grid plus the shifted-grid tiles.
     pub train: ThirdCount,
     /// Of `train`, the tiles from shifted grids.
     pub train_shifted: ThirdCount,
+    /// Test third (aligned grid only): stops growth and chooses how far it is cut back.
     pub test: ThirdCount,
+    /// Pruning third (aligned grid only): decides the top-down pruning.
     pub prune: ThirdCount,
+    /// Frames with a label (background frames included) the tiles were cut from.
     pub labelled_frames: usize,
 }
 
+/// How a head was trained: its inputs, settings and what fitting did (no clock value).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct TrainingMetadata {
+    /// Seed of the stratified shuffle of the aligned-grid tiles into thirds.
     pub seed: u64,
+    /// The training sessions, in the order given, with their hashes.
     pub sessions: Vec<SessionHash>,
     /// Labels of this object only (None: every label).
     pub object: Option<String>,
+    /// Shift between the extra training grids, px (= `tile_px`: the aligned grid only).
     pub train_stride_px: u32,
+    /// The growth and smoothing settings used.
     pub tree_params: TreeParams,
+    /// Examples and positives per third.
     pub examples: ExampleCounts,
+    /// What growth and pruning did.
     pub fit: FitReport,
     /// The final tree on the test third.
     pub test_metrics: Metrics,
@@ -107,18 +159,25 @@ pub struct TrainingMetadata {
     pub prune_metrics: Metrics,
 }
 
+/// A trained tile classifier as saved in a model file (JSON); see the module doc.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Model {
+    /// Model file format version: [`MODEL_VERSION`] for every model that loads.
     pub version: u32,
+    /// Colour quantisation of the tile histograms (`rgb332` or `hsv`).
     pub features: FeatureKind,
+    /// Side of a square tile, px, in [`TILE_PX_RANGE`]; frames are cut into tiles aligned at pixel
+    /// (0, 0).
     pub tile_px: u32,
     /// Radius in tiles of the neighbourhood histogram appended to each tile's (0 = none;
     /// absent in models written before it existed).
     #[serde(default)]
     pub context_tiles: u32,
+    /// The tile head's probability tree; it reads [`Model::n_features`] features.
     pub tree: Tree,
     /// Fraction of positive training examples: the fuser's prior.
     pub base_rate: f64,
+    /// How this head was trained.
     pub metadata: TrainingMetadata,
     /// The region head: a second tree, trained on the same labels with features of the tile's
     /// neighbourhood, that answers the labels' question "is this tile inside the object's
@@ -140,6 +199,8 @@ impl FrameClassifier for Model {
 }
 
 impl Model {
+    /// Reads a model file and checks it: version, feature spec, tile size, context radius, base
+    /// rate, tree and region head (the module's invariants).
     pub fn load(path: &Path) -> Result<Model, ModelError> {
         let bytes = std::fs::read(path).map_err(|source| ModelError::Io {
             path: path.to_owned(),
@@ -232,6 +293,7 @@ impl Model {
         Ok(())
     }
 
+    /// Writes the model as pretty-printed JSON with a final newline, atomically.
     pub fn save(&self, path: &Path) -> Result<(), ModelError> {
         let mut text = serde_json::to_string_pretty(self).map_err(|source| ModelError::Json {
             path: path.to_owned(),
@@ -414,6 +476,7 @@ impl Model {
 /// Probability maps of every frame of a session, in session order.
 #[derive(Debug, Clone)]
 pub struct SessionPrediction {
+    /// Header stamp of each frame, ns since the Unix epoch: `stamps.npy`.
     pub stamps_ns: Vec<i64>,
     /// The region head's maps ([`Model::region`]; the tile head's without one): `probs.npy`.
     pub maps: Vec<TileProbs>,
@@ -424,6 +487,7 @@ pub struct SessionPrediction {
     pub labelled: Option<Metrics>,
     /// The same for `tile_maps`.
     pub tile_labelled: Option<Metrics>,
+    /// Frames of the session with a label (background frames included).
     pub labelled_frames: usize,
 }
 
@@ -590,12 +654,20 @@ impl SessionPrediction {
 /// How to train.
 #[derive(Debug, Clone, PartialEq)]
 pub struct TrainConfig {
+    /// Colour quantisation of the tile head's histograms.
     pub features: FeatureKind,
+    /// Side of a square tile, px, for both heads; must lie in [`TILE_PX_RANGE`].
     pub tile_px: u32,
+    /// Radius in tiles of the tile head's neighbourhood histogram (0 = the tile alone); a model
+    /// loads only with at most [`MAX_CONTEXT_TILES`].
     pub context_tiles: u32,
+    /// Shift between the tile head's extra training grids, px, in 1..=`tile_px`.
     pub train_stride_px: u32,
+    /// Seed of the stratified shuffle into thirds, for both heads.
     pub seed: u64,
+    /// Train on the labels of this object only (None: every label).
     pub object: Option<String>,
+    /// Tree growth and smoothing settings, for both heads.
     pub tree: TreeParams,
     /// How to train the region head (None: no region head; `predict` then writes the tile
     /// head's maps).
@@ -606,8 +678,11 @@ pub struct TrainConfig {
 /// are the tile head's.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RegionConfig {
+    /// Colour quantisation of the region head's histograms.
     pub features: FeatureKind,
+    /// Radius in tiles of the region head's neighbourhood histogram (0 = the tile alone).
     pub context_tiles: u32,
+    /// Shift between the region head's extra training grids, px, in 1..=`tile_px`.
     pub train_stride_px: u32,
 }
 
@@ -653,6 +728,7 @@ impl TrainConfig {
         })
     }
 
+    /// The parameters that build this head's examples.
     pub fn example_params(&self) -> ExampleParams {
         ExampleParams {
             features: self.features,

@@ -23,6 +23,7 @@ pub const MATCH_GATE_M: f64 = 0.5;
 /// One true box of a GroundTruth message.
 #[derive(Debug, Clone, PartialEq)]
 pub struct TrueBox {
+    /// Pose of the box's centre and axes in `odom`.
     pub odom_from_box: Iso3,
     /// Full edge lengths, metres.
     pub size_m: [f64; 3],
@@ -61,11 +62,14 @@ impl TrueBox {
 /// boxes, which is a single box's centre.
 #[derive(Debug, Clone, PartialEq)]
 pub struct TrueObject {
+    /// Object name of its boxes, e.g. `chair`.
     pub name: String,
+    /// Its boxes (at least one), in GroundTruth order.
     pub boxes: Vec<TrueBox>,
 }
 
 impl TrueObject {
+    /// The true centre in `odom`, m: the volume-weighted mean of its boxes' centres.
     pub fn center_m(&self) -> [f64; 3] {
         let total: f64 = self.boxes.iter().map(TrueBox::volume_m3).sum();
         let mut c = [0.0; 3];
@@ -83,6 +87,7 @@ impl TrueObject {
         c
     }
 
+    /// Whether point `p` (`odom`, m) lies inside one of its boxes (faces included).
     pub fn contains(&self, p: [f64; 3]) -> bool {
         self.boxes.iter().any(|b| b.contains(p))
     }
@@ -171,13 +176,21 @@ pub fn true_objects(gt: &GroundTruth) -> Vec<TrueObject> {
     out.into_iter().map(|(_, o)| o).collect()
 }
 
+/// A located object matched to a true object.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Match {
+    /// Index of the true object, in [`true_objects`] order.
     pub truth_index: usize,
+    /// The true object's name.
     pub name: String,
+    /// Index of the located object in the report's `objects` (or a frame's).
     pub object_index: usize,
+    /// Distance from `centroid_m` to the true centre, m: the localisation error; at most the match
+    /// gate ([`MATCH_GATE_M`] or half the true bounds' diagonal).
     pub error_m: f64,
+    /// The object's location (the centre of its extent) in `odom`, m.
     pub centroid_m: [f64; 3],
+    /// The true object's centre in `odom`, m.
     pub truth_center_m: [f64; 3],
     /// Distance from the object's mass centroid (the probability-weighted mean of its cells,
     /// `mass_centroid_m`) to the true centre. The true centre is that of the true bounding
@@ -199,13 +212,20 @@ impl Match {
     }
 }
 
+/// The objects located after one fused frame, scored against the truth.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct FrameEval {
+    /// 0-based count of fused frames (the report's `per_frame` index).
     pub index: usize,
+    /// Header stamp of the frame, ns since the Unix epoch.
     pub stamp_ns: i64,
+    /// Objects located after this frame.
     pub objects: usize,
+    /// Of them, those matched to a true object.
     pub matched: usize,
+    /// Mean localisation error of the matches, m (None: no match).
     pub mean_error_m: Option<f64>,
+    /// Largest localisation error of the matches, m (None: no match).
     pub max_error_m: Option<f64>,
     /// What pose refinement did with the frame (absent when not refining, and for the first
     /// frame, which anchors the frame of reference).
@@ -213,15 +233,23 @@ pub struct FrameEval {
     pub refinement: Option<crate::fuse::refine::Verdict>,
 }
 
+/// A fuse report scored against ground truth (what `objloc eval --json` prints).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Evaluation {
+    /// Path of the evaluated report.
     pub report: String,
     /// Where the report's frame poses came from: "odometry", "refined" or "ground-truth".
     pub poses: String,
+    /// The matched objects, in true-object order.
     pub matches: Vec<Match>,
+    /// Names of the true objects no located object matched.
     pub missed: Vec<String>,
+    /// Locations (`centroid_m`, `odom`, m) of located objects that matched no true object.
     pub spurious: Vec<[f64; 3]>,
+    /// IoU in [0, 1] of the objects' cells against the cells whose centres lie in a true box (0
+    /// when both are empty).
     pub voxel_iou: f64,
+    /// The score after each fused frame, in fusion order.
     pub per_frame: Vec<FrameEval>,
     /// Trajectory error at the fused frames, when the session has true poses.
     pub trajectory: Option<TrajectoryError>,
@@ -235,8 +263,11 @@ pub struct Evaluation {
 /// alignment: odometry and truth share `odom`, where both start at the same pose.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct TrajectoryError {
+    /// Fused frames with a true pose: the RMSEs' sample count (at least 1).
     pub frames: usize,
+    /// RMSE of the /odom positions against the true ones, m.
     pub odometry_ate_m: f64,
+    /// RMSE of the positions the frames were fused with against the true ones, m.
     pub fused_ate_m: f64,
     /// Largest position error of /odom at a frame.
     pub odometry_max_m: f64,
@@ -267,6 +298,7 @@ pub fn trajectory_error(report: &Report, truth: &PoseTrack) -> Option<Trajectory
 }
 
 impl Evaluation {
+    /// Largest localisation error over the matches, m (None: no match).
     pub fn max_error_m(&self) -> Option<f64> {
         self.matches.iter().map(|m| m.error_m).reduce(f64::max)
     }

@@ -16,37 +16,58 @@ use crate::fuse::replay::{FrameSummary, FuseOptions, Outcome, RefinementCheck};
 /// extent (in version 1 it was the mass centroid).
 pub const REPORT_VERSION: u32 = 2;
 
+/// The final belief grid: its geometry, prior and a hash of its contents.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct GridReport {
+    /// Cells along x, y and z: [nx, ny, nz], each at least 1.
     pub dims: [usize; 3],
+    /// Edge of a cubic cell, m.
     pub voxel_size_m: f64,
+    /// Min corner of cell (0, 0, 0) in `odom`, m; cell (i, j, k) has min corner origin + voxel *
+    /// (i, j, k).
     pub origin_m: [f64; 3],
+    /// Prior probability of every cell, strictly inside (0, 1): where each cell's belief starts.
     pub prior: f64,
     /// SHA-256 of the log-odds as little-endian f32 in C order.
     pub sha256: String,
 }
 
+/// The fuse report (`objloc fuse --report`); schema `schemas/report.schema.json`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Report {
+    /// Report format version: [`REPORT_VERSION`].
     pub report_version: u32,
+    /// Version of the objloc that wrote the report.
     pub objloc_version: String,
+    /// Path of the replayed session.
     pub session: String,
+    /// Hex SHA-256 of the session file.
     pub session_sha256: String,
+    /// Path of the model file.
     pub model: String,
+    /// Hex SHA-256 of the model file.
     pub model_sha256: String,
     /// Frames fused.
     pub frames: usize,
+    /// Frames in the session, fused or not.
     pub frames_in_session: usize,
+    /// The fusion options used (`bounds_m` null = derived from the trajectory; `prior` null = the
+    /// model's base rate).
     pub options: FuseOptions,
+    /// The final belief grid.
     pub grid: GridReport,
+    /// Located objects, largest probability mass first.
     pub objects: Vec<Object>,
     /// Flat indices (C order) of the cells of all objects: the thresholded belief.
     pub object_cells: Vec<usize>,
+    /// One summary per fused frame, in fusion order: the pose used, the cells updated and the
+    /// objects after it.
     pub per_frame: Vec<FrameSummary>,
     /// When poses were refined: the check of the refined replay against /odom, and whether
     /// it was rolled back.
     #[serde(default)]
     pub refinement: Option<RefinementCheck>,
+    /// Warnings raised during the replay, for a human reader.
     pub warnings: Vec<String>,
     /// Wall-clock milliseconds per stage: informational, the only field that varies.
     pub timing_ms: BTreeMap<String, f64>,
@@ -58,6 +79,8 @@ pub fn file_sha256(path: &Path) -> std::io::Result<String> {
 }
 
 impl Report {
+    /// The report of a replay's `outcome` fused with `options`; `session` and `model` are paths,
+    /// the hashes hex SHA-256 of their files.
     #[allow(clippy::too_many_arguments)]
     pub fn new(
         outcome: &Outcome,
@@ -95,6 +118,7 @@ impl Report {
         }
     }
 
+    /// The report as pretty-printed JSON (empty if it does not serialize).
     pub fn to_json(&self) -> String {
         serde_json::to_string_pretty(self).unwrap_or_default()
     }

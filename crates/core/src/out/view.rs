@@ -37,6 +37,7 @@ pub fn verdict_rgb(v: Verdict) -> [u8; 3] {
 /// Whole-grid numbers and the cells worth showing, in one pass over the grid.
 #[derive(Debug, Clone, PartialEq)]
 pub struct GridSummary {
+    /// Highest posterior of any cell, in [0, 1] (0 for a grid without cells).
     pub max_posterior: f64,
     /// Mean binary entropy of a cell, bits.
     pub mean_entropy_bits: f64,
@@ -55,6 +56,8 @@ fn binary_entropy_bits(p: f64) -> f64 {
     h(p) + h(1.0 - p)
 }
 
+/// The [`GridSummary`] of `grid`; the cells shown have a posterior above `min_posterior` and were
+/// seen by at least `min_views` frames.
 pub fn summarize_grid(grid: &Grid, min_posterior: f32, min_views: u16) -> GridSummary {
     let [nx, ny, nz] = grid.spec.dims;
     let mut along_x = vec![0f64; ny * nz];

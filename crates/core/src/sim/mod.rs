@@ -35,8 +35,11 @@ pub const START_NS: i64 = 1_700_000_000_000_000_000;
 /// An instance needs this many visible pixels to get a label rectangle (a person would not
 /// box a sliver).
 pub const MIN_LABEL_PIXELS: usize = 16;
+/// Frame id of the fixed world frame: the room, z up, floor at z = 0.
 pub const ODOM_FRAME: &str = "odom";
+/// Frame id of the robot body: x forward, y left, z up.
 pub const BASE_FRAME: &str = "base_link";
+/// Frame id of the camera: optical axes, z forward, x right, y down.
 pub const CAMERA_FRAME: &str = "camera_optical_frame";
 
 /// Seeds of the independent random streams (xor-ed with the user's seed).
@@ -46,27 +49,46 @@ const CAMERA_STREAM: u64 = 0x6361_6D65_7261_0002;
 const EXPOSURE_SIGMA: f64 = 0.06;
 const WHITE_BALANCE_SIGMA: f64 = 0.03;
 
+/// Why a simulated session could not be recorded.
 #[derive(Debug, Error)]
 pub enum SimError {
+    /// A scene does not parse or validate.
     #[error("scene {name}: {what}")]
-    Scene { name: String, what: String },
+    Scene {
+        /// The built-in scene's name or the scene file's path.
+        name: String,
+        /// The parse or validation message (it names the field).
+        what: String,
+    },
+    /// No built-in scene has that name.
     #[error("unknown scene {name:?}; built-in scenes are {}", BUILTIN_SCENES.join(", "))]
-    UnknownScene { name: String },
+    UnknownScene {
+        /// The name asked for.
+        name: String,
+    },
+    /// A scene file could not be read, or a frame dump written.
     #[error("{path}: {source}")]
     Io {
+        /// The file or directory.
         path: PathBuf,
+        /// The I/O error.
         #[source]
         source: std::io::Error,
     },
     /// Boxed: a session error carries an MCAP error and the place it happened.
     #[error(transparent)]
     Session(Box<SessionError>),
+    /// A rendered frame could not be encoded as PNG.
     #[error("frame {index} (stamp {stamp_ns} ns): cannot encode PNG: {what}")]
     Encode {
+        /// Index of the frame (its stop) in the session.
         index: usize,
+        /// The frame's stamp, ns since the Unix epoch.
         stamp_ns: i64,
+        /// The encoder's message.
         what: String,
     },
+    /// The options do not fit the scene (a tour of under 2 stops, more frames than train views).
     #[error("{0}")]
     Options(String),
 }
@@ -77,6 +99,7 @@ impl From<SessionError> for SimError {
     }
 }
 
+/// What kind of session to record.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum Kind {
     /// A few labelled views of the object plus background frames without it.
@@ -85,20 +108,26 @@ pub enum Kind {
     Tour,
 }
 
+/// How to record a simulated session.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SimOptions {
+    /// Train or tour session.
     pub kind: Kind,
+    /// Seed of every random stream (robot speeds, camera jitter): same seed, same file.
     pub seed: u64,
     /// Object views of a train session.
     pub frames: usize,
     /// Stops of a tour.
     pub stops: usize,
+    /// How the executed speeds stray from the commanded ones.
     pub speed_noise: SpeedNoise,
     /// Also write every frame as PNG (and a copy with the label rectangles) here.
     pub dump_frames: Option<PathBuf>,
 }
 
 impl SimOptions {
+    /// Options of `kind` with `seed` and the defaults: 3 train frames, 8 tour stops, the default
+    /// speed noise, no frame dump.
     pub fn new(kind: Kind, seed: u64) -> Self {
         Self {
             kind,
@@ -114,8 +143,11 @@ impl SimOptions {
 /// What a recording wrote.
 #[derive(Debug, Clone, PartialEq)]
 pub struct RecordStats {
+    /// The session file written.
     pub path: PathBuf,
+    /// Camera frames written.
     pub frames: usize,
+    /// Messages written, all topics together.
     pub messages: usize,
 }
 

@@ -21,12 +21,16 @@ const SENSOR_NOISE_LEVELS: f64 = 1.6;
 /// Per-frame camera response: exposure gain, white-balance gains and the noise seed.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FrameJitter {
+    /// Gain on linear radiance, all channels (1 = neutral).
     pub exposure: f64,
+    /// Further gains on linear radiance per channel (r, g, b); 1 = neutral.
     pub white_balance: [f64; 3],
+    /// Seed of the frame's per-pixel sensor noise.
     pub noise_seed: u64,
 }
 
 impl FrameJitter {
+    /// Unit gains and noise seed 0 (the sensor noise is still added, from that seed).
     pub const NEUTRAL: FrameJitter = FrameJitter {
         exposure: 1.0,
         white_balance: [1.0; 3],
@@ -38,16 +42,22 @@ impl FrameJitter {
 /// (0 = none, otherwise an index + 1 into [`Renderer::instances`]).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Rendered {
+    /// Image width, pixels (the scene camera's).
     pub width: u32,
+    /// Image height, pixels.
     pub height: u32,
+    /// Pixels, row-major, R G B per pixel; `len() == width * height * 3`.
     pub rgb: Vec<u8>,
+    /// Per pixel, row-major: the instance id the primary ray hit (0 = none).
     pub ids: Vec<u16>,
 }
 
 /// A named object instance of the scene.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Instance {
+    /// Name of the object (the primitives' `object`).
     pub object: String,
+    /// Which copy of the object (the primitives' `instance`).
     pub instance: u32,
 }
 
@@ -179,6 +189,7 @@ impl Renderer {
         }
     }
 
+    /// The pinhole camera of the scene's camera spec (fx = fy, principal point at the centre).
     pub fn camera(&self) -> &Camera {
         &self.camera
     }

@@ -23,15 +23,20 @@ pub use crate::types::rng::SplitMix64 as Rng;
 /// A planar pose in odom: metres and radians.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Pose2 {
+    /// Position along `odom` x, metres.
     pub x_m: f64,
+    /// Position along `odom` y, metres.
     pub y_m: f64,
+    /// Heading about z, counter-clockwise from `odom` +x, radians in (-pi, pi].
     pub yaw_rad: f64,
 }
 
 /// Relative standard deviations of the executed speeds, and a systematic turn error.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SpeedNoise {
+    /// Relative standard deviation of a drive command's executed speed (0.01 = 1 %).
     pub trans_rel_sigma: f64,
+    /// Relative standard deviation of a rotate command's executed turn rate.
     pub rot_rel_sigma: f64,
     /// The robot turns by (1 + this) times what odometry reports, on every rotation (a
     /// miscalibrated wheel base): a known heading bias to test pose correction against.
@@ -51,7 +56,9 @@ impl Default for SpeedNoise {
 /// Where the robot stops to take a frame; `background` frames are rendered without the target.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Stop {
+    /// Where the robot stands for the frame, planned, in `odom`.
     pub pose: Pose2,
+    /// Whether the frame is rendered without the target (train sessions).
     pub background: bool,
 }
 
@@ -60,29 +67,43 @@ pub struct Stop {
 pub enum Event {
     /// A command starts (non-zero twist) or ends (zero twist).
     CmdVel {
+        /// When the command starts or ends, ns since the Unix epoch.
         stamp_ns: i64,
+        /// Commanded forward speed, m/s.
         linear_m_s: f64,
+        /// Commanded turn rate, rad/s, counter-clockwise.
         angular_rad_s: f64,
     },
     /// Odometry (nominal) and ground-truth poses at the same stamp, with the nominal twist.
     Pose {
+        /// Stamp of both poses, ns since the Unix epoch.
         stamp_ns: i64,
+        /// The odometry pose: the commanded twist integrated.
         nominal: Pose2,
+        /// The true pose: the executed (noisy) twist integrated.
         truth: Pose2,
+        /// Commanded forward speed at the stamp, m/s.
         linear_m_s: f64,
+        /// Commanded turn rate at the stamp, rad/s.
         angular_rad_s: f64,
     },
     /// The robot is still; take frame `index` (into the stops).
     Frame {
+        /// When the frame is taken, ns since the Unix epoch.
         stamp_ns: i64,
+        /// Index of the stop, and so of the frame.
         index: usize,
+        /// Whether the frame is rendered without the target.
         background: bool,
+        /// The odometry pose at the frame.
         nominal: Pose2,
+        /// The true pose, which the frame is rendered from.
         truth: Pose2,
     },
 }
 
 impl Event {
+    /// When the event happens, ns since the Unix epoch.
     pub fn stamp_ns(&self) -> i64 {
         match self {
             Event::CmdVel { stamp_ns, .. }

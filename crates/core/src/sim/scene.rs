@@ -21,17 +21,26 @@ pub fn builtin_json(name: &str) -> Option<&'static str> {
     }
 }
 
+/// A scene file: room, light, camera, robot, primitives and path (`schemas/scene.md`); lengths
+/// metres, angles degrees, colours display RGB in [0, 1], coordinates in `odom`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Scene {
+    /// Scene name, used in messages.
     pub name: String,
     /// The object that train sessions label and remove for background frames.
     pub target: String,
+    /// The room around everything: its size and surface materials.
     pub room: Room,
+    /// The directional light and the ambient term.
     pub light: Light,
+    /// The camera: image size, field of view and mount on the robot.
     pub camera: CameraSpec,
+    /// The robot's nominal command speeds.
     pub robot: RobotSpec,
+    /// Every shape in the room, of the named objects and of the furniture.
     pub primitives: Vec<Primitive>,
+    /// Where the robot goes in train and tour sessions.
     pub path: PathSpec,
 }
 
@@ -41,12 +50,15 @@ pub struct Scene {
 pub struct Room {
     /// Full extents [x, y, z] in metres.
     pub size_m: [f64; 3],
+    /// Material of the floor (z = 0); its texture is evaluated in `odom`.
     pub floor: Material,
+    /// Material of the ceiling (z = `size_m[2]`).
     pub ceiling: Material,
     /// Walls at x min, x max, y min, y max.
     pub walls: [Material; 4],
 }
 
+/// The lighting: one directional light casting shadows, plus an ambient term.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Light {
@@ -58,24 +70,33 @@ pub struct Light {
     pub ambient: f64,
 }
 
+/// The robot's camera: a pinhole with fx = fy, principal point at the image centre.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct CameraSpec {
+    /// Image width, pixels, 1 to 4096 (the built-ins use 256).
     pub width: u32,
+    /// Image height, pixels, 1 to 4096 (the built-ins use 240).
     pub height: u32,
+    /// Horizontal field of view, degrees, in (1, 170).
     pub hfov_deg: f64,
     /// Camera position in base_link.
     pub mount_m: [f64; 3],
+    /// Downward pitch of the optical axis from base_link +x, degrees (it looks along +x at 0).
     pub pitch_down_deg: f64,
 }
 
+/// The robot's nominal speeds.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct RobotSpec {
+    /// Nominal speed of drive commands, m/s (> 0).
     pub drive_speed_m_s: f64,
+    /// Nominal speed of rotate commands, rad/s (> 0).
     pub turn_speed_rad_s: f64,
 }
 
+/// One shape of the scene with its material, and the named object it belongs to, if any.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Primitive {
@@ -89,61 +110,101 @@ pub struct Primitive {
     /// are grouped by (object, instance) regardless.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub group: Option<String>,
+    /// Geometry and placement, in `odom`.
     pub shape: Shape,
+    /// Colour and texture; the texture follows the primitive's own frame.
     pub material: Material,
 }
 
+/// A primitive's geometry in `odom` (JSON `kind`: box, cylinder or sphere).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
 pub enum Shape {
     /// A box rotated by `yaw_deg` about the vertical through its centre.
     Box {
+        /// Centre of the box in `odom`, metres.
         center_m: [f64; 3],
+        /// Full edge lengths along the box's own axes, metres (> 0).
         size_m: [f64; 3],
+        /// Rotation about the vertical, degrees, counter-clockwise (default 0).
         #[serde(default)]
         yaw_deg: f64,
     },
     /// A vertical cylinder standing on `base_center_m`.
     Cylinder {
+        /// Centre of the bottom face in `odom`, metres.
         base_center_m: [f64; 3],
+        /// Radius, metres (> 0).
         radius_m: f64,
+        /// Height above the base, metres (> 0).
         height_m: f64,
     },
+    /// A sphere around `center_m`.
     Sphere {
+        /// Centre in `odom`, metres.
         center_m: [f64; 3],
+        /// Radius, metres (> 0).
         radius_m: f64,
     },
 }
 
+/// A surface's look: display colour times a procedural texture.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Material {
     /// Albedo as display RGB in [0, 1].
     pub color: [f64; 3],
+    /// Albedo pattern over the surface (default flat).
     #[serde(default)]
     pub texture: Texture,
 }
 
+/// A procedural factor on the albedo (JSON `kind`), evaluated in the primitive's own frame
+/// (the room's surfaces in `odom`).
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
 pub enum Texture {
+    /// Uniform: the colour as it is (the default).
     #[default]
     Flat,
     /// Two-octave value noise with feature size `scale_m`; albedo varies by +-`amount`.
-    Noise { scale_m: f64, amount: f64 },
+    Noise {
+        /// Feature size of the noise, metres (> 0).
+        scale_m: f64,
+        /// The albedo varies by a factor within 1 +- this.
+        amount: f64,
+    },
     /// Bands of width period/2 along `axis` (0 = x, 1 = y, 2 = z), darkened by `amount`.
     Stripes {
+        /// Length of one light and one dark band together, metres (> 0).
         period_m: f64,
+        /// Local axis along which the bands alternate: 0 = x, 1 = y, 2 = z.
         axis: u8,
+        /// Darkening of the dark bands: their albedo is times (1 - amount).
         amount: f64,
     },
     /// Rings around the primitive's local vertical axis, warped by noise.
-    Wood { ring_period_m: f64, amount: f64 },
+    Wood {
+        /// Radial spacing of the rings, metres (> 0).
+        ring_period_m: f64,
+        /// Darkening of the late-wood bands and the grain, as a fraction of the albedo.
+        amount: f64,
+    },
     /// Squares of side period/2 in the local x-y plane, alternate ones darkened by `amount`.
-    Checker { period_m: f64, amount: f64 },
+    Checker {
+        /// Side of a light and a dark square together, metres (> 0).
+        period_m: f64,
+        /// Darkening of the dark squares: their albedo is times (1 - amount).
+        amount: f64,
+    },
     /// Concentric bands of width period/2 about the local vertical axis (a round rug's
     /// bands, centred on the room for the room's floor), alternate ones darkened by `amount`.
-    Rings { period_m: f64, amount: f64 },
+    Rings {
+        /// Radial width of a light and a dark band together, metres (> 0).
+        period_m: f64,
+        /// Darkening of the dark bands: their albedo is times (1 - amount).
+        amount: f64,
+    },
 }
 
 /// Where the robot goes. Bearings are measured in odom from +x, counter-clockwise.
@@ -162,22 +223,31 @@ pub struct PathSpec {
     pub background_stops: Vec<StopPose>,
 }
 
+/// A train viewpoint: the robot stands here, facing `target_m`.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct View {
+    /// Bearing of the robot seen from `target_m`, degrees, counter-clockwise from `odom` +x.
     pub bearing_deg: f64,
+    /// Distance of base_link from `target_m`, metres (> 0).
     pub distance_m: f64,
 }
 
+/// A background stop of train sessions: a planar pose in `odom`.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct StopPose {
+    /// Position along `odom` x, metres.
     pub x_m: f64,
+    /// Position along `odom` y, metres.
     pub y_m: f64,
+    /// Heading, degrees, counter-clockwise from `odom` +x.
     pub yaw_deg: f64,
 }
 
 impl Scene {
+    /// Parses a scene file's JSON and validates it; the error is serde's or [`Scene::validate`]'s
+    /// message.
     pub fn from_json(text: &str) -> Result<Self, String> {
         let scene: Scene = serde_json::from_str(text).map_err(|e| e.to_string())?;
         scene.validate()?;

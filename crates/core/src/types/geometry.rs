@@ -7,6 +7,8 @@
 
 use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
 
+/// A rigid 3D transform (rotation, then translation in metres); named `a_from_b` when it maps
+/// coordinates in frame b to frame a.
 pub type Iso3 = Isometry3<f64>;
 
 /// Pose from a translation and a quaternion (x, y, z, w); `None` if a value is not finite or
@@ -76,11 +78,17 @@ pub fn interpolate(a: &Iso3, b: &Iso3, s: f64) -> Iso3 {
 /// A distortion-free pinhole camera.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Camera {
+    /// Image width, pixels.
     pub width: u32,
+    /// Image height, pixels.
     pub height: u32,
+    /// Horizontal focal length, pixels (`K[0]`); positive.
     pub fx: f64,
+    /// Vertical focal length, pixels (`K[4]`); positive.
     pub fy: f64,
+    /// Principal point, u in continuous image coordinates (pixel centres at +0.5), pixels (`K[2]`).
     pub cx: f64,
+    /// Principal point, v in continuous image coordinates, pixels (`K[5]`).
     pub cy: f64,
 }
 

@@ -5,12 +5,16 @@
 /// A decoded 8-bit RGB image, row-major, 3 bytes per pixel.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Rgb8 {
+    /// Width, pixels.
     pub width: u32,
+    /// Height, pixels.
     pub height: u32,
+    /// Pixel bytes, row-major, R G B per pixel; `len() == width * height * 3`.
     pub data: Vec<u8>,
 }
 
 impl Rgb8 {
+    /// The (r, g, b) of pixel (x, y): x across, y down from the top-left; panics outside the image.
     #[inline]
     pub fn pixel(&self, x: u32, y: u32) -> [u8; 3] {
         let i = (y as usize * self.width as usize + x as usize) * 3;

@@ -17,10 +17,13 @@ use crate::types::image::Rgb8;
 pub struct Distortion {
     /// Radial coefficients of r^2, r^4, r^6.
     pub k1: f64,
+    /// Radial coefficient of r^4.
     pub k2: f64,
+    /// Radial coefficient of r^6 (fifth in CameraInfo's `d`).
     pub k3: f64,
     /// Tangential coefficients.
     pub p1: f64,
+    /// Second tangential coefficient: x moves by `p2 (r^2 + 2 x^2)`, y by `2 p2 x y`.
     pub p2: f64,
 }
 

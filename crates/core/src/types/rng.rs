@@ -4,14 +4,17 @@
 
 use std::f64::consts::PI;
 
+/// The SplitMix64 generator; its one field is the whole state (the seed, advanced by each draw).
 #[derive(Debug, Clone)]
 pub struct SplitMix64(pub u64);
 
 impl SplitMix64 {
+    /// A generator seeded with `seed`: the same seed gives the same stream everywhere.
     pub fn new(seed: u64) -> Self {
         Self(seed)
     }
 
+    /// The next value of the stream, uniform over all of u64.
     pub fn next_u64(&mut self) -> u64 {
         self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
         let mut z = self.0;

@@ -17,6 +17,7 @@ pub const DETECTION_DELTA: f32 = 3.0;
 /// and vertically, pixels (measured 1-3 px and 2-8 px across the shipped tours' views; the
 /// vertical spread comes from legs and shadows).
 pub const SIGMA_U_PX: f64 = 3.0;
+/// Vertical counterpart of [`SIGMA_U_PX`], pixels.
 pub const SIGMA_V_PX: f64 = 8.0;
 /// A cluster further than this from a landmark's predicted position is not its sighting.
 pub const GATE_PX: f64 = 64.0;
@@ -70,7 +71,9 @@ pub fn detection_clusters(ev: &TileEvidence) -> Vec<[f64; 2]> {
 /// A ray in `odom` through a detection cluster's centroid, from the frame it was seen in.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Sighting {
+    /// Index of the fused frame (0-based) the cluster was seen in.
     pub frame: usize,
+    /// Where the ray starts: the camera centre in `odom`, metres.
     pub origin_m: Vector3<f64>,
     /// Unit direction.
     pub direction: Vector3<f64>,
@@ -131,7 +134,9 @@ fn closest_per_frame<'a>(
 /// A landmark: a point in `odom` and the covariance of its position (m^2).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Landmark {
+    /// Position of the landmark in `odom`, metres.
     pub position_m: Vector3<f64>,
+    /// Covariance of `position_m` (x, y, z in `odom`), m^2; symmetric, positive semi-definite.
     pub covariance_m2: Matrix3<f64>,
 }
 

@@ -93,6 +93,7 @@ pub const AMBIGUITY_MARGIN: f64 = 2.0;
 /// they keep it invertible after a frame without motion and let a frame settle within a
 /// fraction of a tile of its neighbours.
 pub const FLOOR_SIGMA_XY_M: f64 = 0.01;
+/// Heading counterpart of [`FLOOR_SIGMA_XY_M`], radians.
 pub const FLOOR_SIGMA_YAW_RAD: f64 = 0.005;
 
 /// Half-width of the coarse search, in standard deviations of the motion model.
@@ -156,6 +157,7 @@ pub struct Correction {
     /// The best candidate's correction of the predicted position in `odom`, metres (applied
     /// only when `applied`).
     pub dx_m: f64,
+    /// The same correction along `odom` y, metres (applied only when `applied`).
     pub dy_m: f64,
     /// ... of the predicted heading, radians (about the robot's vertical axis).
     pub dyaw_rad: f64,
@@ -212,6 +214,7 @@ mod finite_or_null {
 }
 
 impl Correction {
+    /// No correction, not applied: [`Verdict::NoEvidence`], no runner-up (infinite margin).
     pub const ZERO: Correction = Correction {
         dx_m: 0.0,
         dy_m: 0.0,
@@ -244,7 +247,10 @@ impl Correction {
 /// of its error since the first frame (x, y, yaw in `odom`, without the floor).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct TotalGate {
+    /// The robot pose /odom gives for the frame (odom_from_base).
     pub odometry: Iso3,
+    /// Covariance of /odom's (x, y, yaw) error in `odom` since the first frame (m^2, rad^2),
+    /// without the floor sigmas ([`TotalGate::chi2`] adds them).
     pub covariance: Matrix3<f64>,
 }
 
@@ -325,10 +331,12 @@ pub struct Localisation<'a> {
     pub clusters: &'a [[f64; 2]],
     /// The camera and its mount on the robot.
     pub camera: &'a Camera,
+    /// The mount: pose of the camera optical frame in `base_link` (base_from_camera).
     pub base_from_camera: &'a Iso3,
     /// The predicted robot pose (odom_from_base) and the motion model's covariance about it
     /// (x, y, yaw).
     pub predicted: &'a Iso3,
+    /// The motion model's covariance about `predicted` (x, y, yaw in `odom`; m^2, rad^2).
     pub cov: &'a Matrix3<f64>,
     /// The floor map and the frame's floor patch, when the floor term is used.
     pub floor: Option<(&'a FloorMap, &'a FloorPatch)>,

@@ -9,7 +9,9 @@ use super::*;
 
 /// The fuser state: grid, blur scratch and options. Takes typed values, returns state.
 pub struct Fuser {
+    /// The belief being fused into.
     pub grid: Grid,
+    /// How to fuse: blur mode, speed noise, clamp, object rule, refinement.
     pub options: FuseOptions,
     blurrer: Blurrer,
     /// Pose variance accumulated since the first frame (for [`BlurMode::Observation`]):
@@ -22,6 +24,8 @@ pub struct Fuser {
 }
 
 impl Fuser {
+    /// A fuser with a fresh grid at `prior`; [`GridError::Prior`] or [`GridError::Clamp`] when
+    /// `prior` or `options.clamp` is not a valid probability (range).
     pub fn new(spec: GridSpec, prior: f64, options: FuseOptions) -> Result<Self, GridError> {
         let mut grid = Grid::new(spec, prior)?;
         if let Some((lo, hi)) = options.clamp {

@@ -42,33 +42,54 @@ use crate::types::geometry::Iso3;
 use crate::types::image::Rgb8;
 use crate::types::probs::{FrameClassifier, TileProbs};
 
+/// Why a replay failed; each names the session file and, where known, the topic and log time.
 #[derive(Debug, Error)]
 pub enum ReplayError {
+    /// Opening, reading or decoding the session failed.
     #[error(transparent)]
     Session(#[from] SessionError),
+    /// The session makes the result meaningless (no CameraInfo, a changing camera, no mount, ...).
     #[error("{at}: {what}")]
-    Invalid { at: At, what: String },
+    Invalid {
+        /// Where in the session: file, and topic and log time when known.
+        at: At,
+        /// What is wrong, one line.
+        what: String,
+    },
+    /// The grid cannot be built from the options and the session.
     #[error("{path}: grid: {source}")]
     Grid {
+        /// The session file.
         path: String,
+        /// Why the grid was refused.
         #[source]
         source: GridError,
     },
+    /// No frame has both a pose and the camera, so nothing could be fused.
     #[error(
         "{path}: no frame could be fused ({frames} frame(s) in the session, none with a pose and camera)"
     )]
-    NothingFused { path: String, frames: usize },
+    NothingFused {
+        /// The session file.
+        path: String,
+        /// Frames in the session.
+        frames: usize,
+    },
     /// A frame's pixels do not decode.
     #[error("{at}: {source}")]
     Frame {
+        /// Where the frame is in the session.
         at: At,
+        /// Why its pixels do not decode.
         #[source]
         source: crate::io::session::FrameError,
     },
     /// An observer (the viewer, a report writer) failed; its error is the source.
     #[error("{at}: observer failed")]
     Observer {
+        /// The frame being observed, or only the file before the first frame.
         at: At,
+        /// The observer's own error.
         #[source]
         source: ObserverError,
     },
@@ -82,6 +103,7 @@ pub type ObserverError = Box<dyn std::error::Error + Send + Sync>;
 pub struct FuseOptions {
     /// (min, max) corners in `odom`, metres; `None` = derived from the trajectory.
     pub bounds_m: Option<([f64; 3], [f64; 3])>,
+    /// Edge length of a grid cell, metres (default 0.04).
     pub voxel_size_m: f64,
     /// Prior probability of a cell; `None` = the classifier's base rate.
     pub prior: Option<f64>,
@@ -89,9 +111,11 @@ pub struct FuseOptions {
     pub sigma_v_mps: f64,
     /// Rotational speed noise, rad/s (paper: sigma_w).
     pub sigma_w_radps: f64,
+    /// What the motion blur averages (default [`BlurMode::LogOdds`]).
     pub blur: BlurMode,
     /// Optional clamp of cell probabilities after each update, e.g. (0.001, 0.999).
     pub clamp: Option<(f64, f64)>,
+    /// How objects are found in the belief.
     pub objects: ObjectParams,
     /// Where frame poses come from: /odom (the default, what a robot has) or the simulator's
     /// /ground_truth/pose (to tell odometry error apart from classifier error).
@@ -108,12 +132,15 @@ pub struct FuseOptions {
     pub refine_floor: bool,
 }
 
+/// Where the replay takes the robot poses of frames from (`--poses`).
 #[derive(
     Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize, clap::ValueEnum,
 )]
 #[serde(rename_all = "kebab-case")]
 pub enum PoseSource {
+    /// /odom: the robot's dead reckoning (the default, what a real robot has).
     Odometry,
+    /// The simulator's /ground_truth/pose; an error for a session that lacks it.
     GroundTruth,
 }
 
@@ -153,28 +180,35 @@ impl FuseOptions {
 pub struct FrameStep {
     /// 0-based count of fused frames.
     pub index: usize,
+    /// The session's frame: topic, stamps and raw message index.
     pub frame: FrameRef,
     /// The camera and robot poses the frame was fused with (refined, when refining).
     pub odom_from_camera: Iso3,
+    /// The robot pose the frame was fused with (odom_from_base; refined, when refining).
     pub odom_from_base: Iso3,
     /// The robot pose /odom gives for the frame.
     pub odometry: Iso3,
     /// The pose correction, when refining.
     pub correction: Option<Correction>,
+    /// The frame's decoded pixels.
     pub image: Rgb8,
+    /// The classifier's tile probabilities for the frame.
     pub probs: TileProbs,
     /// Commands blurred into the belief before this frame.
     pub segments: Vec<Segment>,
     /// Objects found after this frame (the fuse's own rule).
     pub objects: Vec<Object>,
+    /// Grid cells the frame's evidence updated (centres projecting into a tile).
     pub cells_updated: usize,
 }
 
 /// Sees the replay; cannot change it.
 pub trait Observer {
+    /// Called once before the first frame, with the session and a grid at the prior.
     fn on_start(&mut self, _data: &SessionData, _grid: &Grid) -> Result<(), ObserverError> {
         Ok(())
     }
+    /// Called after each frame is fused, with the grid as it now is.
     fn on_frame(
         &mut self,
         _data: &SessionData,
@@ -192,34 +226,48 @@ pub trait Observer {
 /// The result of a replay.
 #[derive(Debug)]
 pub struct Outcome {
+    /// The session as pass 1 read it.
     pub data: SessionData,
+    /// The final belief.
     pub grid: Grid,
+    /// Objects found in the final belief, largest probability mass first.
     pub objects: Vec<Object>,
     /// Flat indices of the final objects' cells, ascending.
     pub object_cells: Vec<usize>,
+    /// Frames fused into the grid (those with a pose and the camera).
     pub frames_fused: usize,
     /// Per fused frame: stamp and objects after it.
     pub per_frame: Vec<FrameSummary>,
+    /// Problems that left the rest usable, one line each naming file, topic and log time.
     pub warnings: Vec<String>,
     /// The check of the refined poses against /odom, when refining.
     pub refinement: Option<RefinementCheck>,
 }
 
+/// One fused frame in brief, as the report keeps it.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct FrameSummary {
+    /// 0-based count of fused frames.
     pub index: usize,
+    /// The frame's header stamp, ns since the Unix epoch.
     pub stamp_ns: i64,
+    /// The frame's MCAP log time, ns since the Unix epoch.
     pub log_time_ns: u64,
     /// Robot pose the frame was fused with (refined, when refining).
     pub position_m: [f64; 3],
+    /// Heading of that pose about z in `odom`, radians in (-pi, pi].
     pub yaw_rad: f64,
     /// Robot pose from /odom.
     pub odom_position_m: [f64; 3],
+    /// Heading of the /odom pose about z, radians in (-pi, pi].
     pub odom_yaw_rad: f64,
     /// The correction refinement applied (none when not refining).
     pub correction: Option<Correction>,
+    /// Grid cells the frame's evidence updated.
     pub cells_updated: usize,
+    /// Highest cell probability in the grid after the frame, in [0, 1].
     pub max_probability: f64,
+    /// Objects found after the frame (the fuse's own rule).
     pub objects: Vec<Object>,
 }
 

@@ -18,16 +18,22 @@ pub const DEFAULT_MIN_SIDE_M: f64 = 4.0;
 pub struct FrameRef {
     /// Index into the reader's raw messages.
     pub raw_index: usize,
+    /// Topic the frame came on.
     pub topic: String,
+    /// MCAP log time, ns since the Unix epoch (the replay's order).
     pub log_time_ns: u64,
+    /// Header stamp (exposure time), ns since the Unix epoch; the frame's pose is taken at it.
     pub stamp_ns: i64,
 }
 
 /// Everything of a session but the pixels, validated.
 #[derive(Debug, Clone)]
 pub struct SessionData {
+    /// The session file, as messages name it.
     pub path: String,
+    /// Pinhole intrinsics from CameraInfo (one camera per session).
     pub camera: Camera,
+    /// CameraInfo's frame id; the mount is the transform to this frame.
     pub camera_frame_id: String,
     /// base_link -> camera optical frame, from /tf_static.
     pub base_from_camera: Iso3,
@@ -35,9 +41,13 @@ pub struct SessionData {
     pub odom: PoseTrack,
     /// (stamp, v m/s, w rad/s), sorted by stamp.
     pub commands: Vec<(i64, f64, f64)>,
+    /// The camera frames, in (log time, channel id, sequence) order.
     pub frames: Vec<FrameRef>,
+    /// (stamp, odom_from_base) from /ground_truth/pose, sorted by stamp; empty unless simulated.
     pub ground_truth_poses: PoseTrack,
+    /// The true object boxes from /ground_truth/objects, when recorded.
     pub ground_truth: Option<GroundTruth>,
+    /// Problems of pass 1 that left the rest usable, one line each.
     pub warnings: Vec<String>,
 }
 

@@ -30,8 +30,11 @@ pub use fit::fit;
 /// Which third of the examples an example belongs to.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize)]
 pub enum Third {
+    /// Grows the tree; its fraction of positives is the base rate (0 in `split.npy`).
     Train = 0,
+    /// Stops growth and chooses how far it is cut back (1 in `split.npy`).
     Test = 1,
+    /// Decides the top-down pruning (2 in `split.npy`).
     Prune = 2,
 }
 
@@ -40,12 +43,17 @@ pub enum Third {
 /// strictly increasing, counts > 0; absent features are 0.
 #[derive(Debug, Clone, Default)]
 pub struct Examples {
+    /// Features per example; every entry's feature is below it.
     pub n_features: usize,
     /// Largest possible count (the value 1.0).
     pub denom: u16,
+    /// Start of each example's entries in `entries`, then the end: `len() + 1` values from 0.
     pub offsets: Vec<u32>,
+    /// The (feature, count) entries of all examples, one example after another.
     pub entries: Vec<(u16, u16)>,
+    /// Whether each example is positive (for tiles: lies fully inside a label rectangle).
     pub labels: Vec<bool>,
+    /// The third each example belongs to.
     pub thirds: Vec<Third>,
 }
 
@@ -65,6 +73,7 @@ pub fn push_nonzero(counts: &[u16], out: &mut Vec<(u16, u16)>) {
 }
 
 impl Examples {
+    /// No examples yet, of `n_features` features with counts out of `denom`.
     pub fn new(n_features: usize, denom: u16) -> Self {
         Self {
             n_features,
@@ -74,10 +83,12 @@ impl Examples {
         }
     }
 
+    /// Number of examples.
     pub fn len(&self) -> usize {
         self.labels.len()
     }
 
+    /// Whether there are no examples.
     pub fn is_empty(&self) -> bool {
         self.labels.is_empty()
     }
@@ -99,6 +110,7 @@ impl Examples {
         self.thirds.push(third);
     }
 
+    /// The non-zero (feature, count) entries of example i, features strictly increasing.
     pub fn sparse(&self, i: usize) -> &[(u16, u16)] {
         &self.entries[self.offsets[i] as usize..self.offsets[i + 1] as usize]
     }
@@ -135,56 +147,98 @@ impl Examples {
     }
 }
 
+/// A node's test of one feature against a threshold, and its two children.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Split {
+    /// Index of the feature tested, below the tree's `n_features`.
     pub feature: u16,
     /// Go left when the feature value (a fraction in [0, 1]) is <= threshold. Always the
     /// midpoint between two neighbouring distinct training values.
     pub threshold: f64,
+    /// Node index of the child for values <= `threshold` (larger than this node's).
     pub left: u32,
+    /// Node index of the child for values > `threshold` (larger than this node's).
     pub right: u32,
 }
 
+/// One node of a [`Tree`]: a leaf, or a split with two children.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Node {
     /// Probability of the positive class when this node is (or is condensed into) a leaf.
     pub p: f64,
     /// Training examples reaching this node, and how many were positive.
     pub n_train: u32,
+    /// Of `n_train`, the positives.
     pub pos_train: u32,
+    /// The node's test and children; None for a leaf.
     pub split: Option<Split>,
 }
 
+/// A probability tree: node 0 is the root and every child comes after its parent (see
+/// [`Tree::validate`]).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Tree {
+    /// Features an example has; every split's feature is below it.
     pub n_features: usize,
+    /// The nodes, root first; fitted trees are in pre-order.
     pub nodes: Vec<Node>,
 }
 
+/// Why a tree (read from a file) or a set of examples is refused.
 #[derive(Debug, Error, PartialEq)]
 pub enum TreeError {
+    /// The tree has no nodes.
     #[error("tree has no nodes")]
     Empty,
+    /// A child index is not after its node, or is past the last node.
     #[error("node {node}: child {child} is not after it and before {len}")]
-    BadChild { node: usize, child: u32, len: usize },
+    BadChild {
+        /// Index of the node.
+        node: usize,
+        /// The child index it names.
+        child: u32,
+        /// Number of nodes.
+        len: usize,
+    },
+    /// A split tests a feature the tree does not have.
     #[error("node {node}: feature {feature} is not below the {n_features} features")]
     BadFeature {
+        /// Index of the node.
         node: usize,
+        /// The feature it tests.
         feature: u16,
+        /// The tree's feature count.
         n_features: usize,
     },
+    /// A node's probability is not strictly inside (0, 1) (or is NaN).
     #[error("node {node}: probability {p} is not strictly between 0 and 1")]
-    BadProbability { node: usize, p: f64 },
+    BadProbability {
+        /// Index of the node.
+        node: usize,
+        /// The probability.
+        p: f64,
+    },
+    /// A split's threshold is NaN or infinite.
     #[error("node {node}: threshold {threshold} is not finite")]
-    BadThreshold { node: usize, threshold: f64 },
+    BadThreshold {
+        /// Index of the node.
+        node: usize,
+        /// The threshold.
+        threshold: f64,
+    },
+    /// No example is in the training third.
     #[error("no training examples")]
     NoTrainingExamples,
+    /// An entry's feature is not below `n_features`, a count exceeds `denom`, or `denom` is 0.
     #[error(
         "{n_entries} feature entries for {n_features} features with denominator {denom}: an entry is out of range"
     )]
     BadExamples {
+        /// Entries of all examples.
         n_entries: usize,
+        /// The declared feature count.
         n_features: usize,
+        /// The declared largest count (the value 1.0).
         denom: u16,
     },
 }
@@ -254,6 +308,7 @@ impl Tree {
         self.nodes[self.leaf_of(|f| ex.count(i, f as u16) as f64 / d)].p
     }
 
+    /// Number of leaves (nodes without a split).
     pub fn leaves(&self) -> usize {
         self.nodes.iter().filter(|n| n.split.is_none()).count()
     }
@@ -322,14 +377,21 @@ impl Default for TreeParams {
 /// What growth and pruning did, for the train table and the model metadata.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct FitReport {
+    /// Fraction of the training third's examples that are positive, in [0, 1]: the base rate the
+    /// leaves are smoothed toward, and the model's `base_rate`.
     pub base_rate: f64,
     /// Expansions made before the test third stopped growth, and the count kept (the one
     /// with the best test log-loss).
     pub expansions_tried: usize,
+    /// Of those, the expansions kept: the count with the best test log-loss.
     pub expansions_kept: usize,
+    /// Nodes of the grown tree (after cutting back, before pruning).
     pub nodes_grown: usize,
+    /// Depth of the grown tree: edges on its longest root-to-leaf path.
     pub depth_grown: usize,
+    /// Nodes of the final tree, after pruning.
     pub nodes_pruned: usize,
+    /// Depth of the final tree, after pruning.
     pub depth_pruned: usize,
     /// Mean log-loss of the test third after each kept expansion count (index 0 = root only).
     pub test_logloss_curve: Vec<f64>,
@@ -338,7 +400,9 @@ pub struct FitReport {
 /// Quality of probabilities against labels.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Metrics {
+    /// Examples scored.
     pub n: usize,
+    /// Of them, the positives.
     pub positives: usize,
     /// Fraction correct when p >= 0.5 means positive.
     pub accuracy: f64,
@@ -348,6 +412,8 @@ pub struct Metrics {
     pub roc_auc: Option<f64>,
 }
 
+/// Accuracy, mean log-loss and ROC AUC of probabilities `p` against labels `y`, paired up to the
+/// shorter (accuracy and log-loss 0 when empty).
 pub fn metrics(p: &[f64], y: &[bool]) -> Metrics {
     let n = p.len().min(y.len());
     let mut correct = 0usize;

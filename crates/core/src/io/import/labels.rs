@@ -1,0 +1,242 @@
+//! Labels of an imported sequence: a CSV of rectangles (`image,x,y,width,height[,object]`,
+//! several rows per image for several objects or rectangles) or a folder of masks, each turned
+//! into the rectangle around its foreground.
+//!
+//! Invariants: rows keep their file order per image; a row with an empty box marks a
+//! background frame; an empty object column means the importer's `--object`; every error
+//! names the file and line (or the mask file).
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use super::ImportError;
+use crate::io::msgs::RegionOfInterest;
+
+/// One label row: where it came from, the object it names (None: the import's default
+/// object) and its rectangle (None: a background row, the frame shows no object).
+#[derive(Debug, Clone, PartialEq)]
+pub struct LabelRow {
+    /// 1-based line of the CSV (0 for a rectangle from a mask).
+    pub line: usize,
+    /// Object name from the CSV's sixth column, if it has one.
+    pub object: Option<String>,
+    /// Rectangle in pixels of the image file, or None for a background row.
+    pub roi: Option<RegionOfInterest>,
+}
+
+/// Label rows by image file name, in file order. A first line starting with `image` is a
+/// header.
+pub type Labels = BTreeMap<String, Vec<LabelRow>>;
+
+/// Parses a labels CSV: `image,x,y,width,height` with an optional sixth `object` column.
+pub fn parse_labels(path: &Path, text: &str) -> Result<Labels, ImportError> {
+    let mut out: Labels = BTreeMap::new();
+    for (i, raw) in text.lines().enumerate() {
+        let line = i + 1;
+        let content = raw.trim();
+        if content.is_empty()
+            || content.starts_with('#')
+            || (line == 1 && content.starts_with("image"))
+        {
+            continue;
+        }
+        let err = |what: String| ImportError::Line {
+            path: path.into(),
+            line,
+            what,
+        };
+        let fields: Vec<&str> = content.split(',').map(str::trim).collect();
+        if fields.len() != 5 && fields.len() != 6 {
+            return Err(err(format!(
+                "expected 5 or 6 columns `image,x,y,width,height[,object]`, found {}",
+                fields.len()
+            )));
+        }
+        if fields[0].is_empty() {
+            return Err(err("image name is empty".into()));
+        }
+        let roi = parse_box(&fields[1..5]).map_err(err)?;
+        let object = fields
+            .get(5)
+            .filter(|o| !o.is_empty())
+            .map(|o| (*o).to_owned());
+        out.entry(fields[0].to_owned())
+            .or_default()
+            .push(LabelRow { line, object, roi });
+    }
+    Ok(out)
+}
+
+/// x, y, width, height in whole pixels, or all four empty (a background row).
+fn parse_box(fields: &[&str]) -> Result<Option<RegionOfInterest>, String> {
+    if fields.iter().all(|f| f.is_empty()) {
+        return Ok(None);
+    }
+    let mut v = [0u32; 4];
+    for (k, f) in fields.iter().enumerate() {
+        v[k] = f
+            .parse()
+            .map_err(|_| format!("column {} ({f:?}) is not a whole number of pixels", k + 2))?;
+    }
+    if v[2] == 0 || v[3] == 0 {
+        return Err(format!("box {} x {} is empty", v[2], v[3]));
+    }
+    Ok(Some(RegionOfInterest {
+        x_offset: v[0],
+        y_offset: v[1],
+        width: v[2],
+        height: v[3],
+        do_rectify: false,
+    }))
+}
+
+/// The mask file of `image` in `masks`: the one whose stem is the image's stem, or starts
+/// with it followed by `-`, `_` or `.` (`1.jpg` <-> `1-removebg-preview.png`, `1_mask.png`).
+fn mask_for(masks: &[PathBuf], image: &Path) -> Result<Option<PathBuf>, ImportError> {
+    let stem = image.file_stem().and_then(|s| s.to_str()).unwrap_or("");
+    let hits: Vec<&PathBuf> = masks
+        .iter()
+        .filter(|m| {
+            let ms = m.file_stem().and_then(|s| s.to_str()).unwrap_or("");
+            ms == stem
+                || ms
+                    .strip_prefix(stem)
+                    .is_some_and(|rest| rest.starts_with(['-', '_', '.']))
+        })
+        .collect();
+    match hits.as_slice() {
+        [] => Ok(None),
+        [one] => Ok(Some((*one).clone())),
+        [a, b, ..] => Err(ImportError::Invalid {
+            path: image.into(),
+            what: format!(
+                "two masks match this image: {} and {}",
+                a.display(),
+                b.display()
+            ),
+        }),
+    }
+}
+
+/// Rectangles from masks: for each image with a mask in `dir`, the box around the mask's
+/// foreground (alpha > 128 where the mask has alpha, else luminance > 128), scaled to the
+/// image's `size` when the mask is smaller or larger, rounded outward and clipped. Images
+/// without a mask get no label; a mask without foreground gives a background row.
+pub fn labels_from_masks(
+    dir: &Path,
+    images: &[(PathBuf, (u32, u32))],
+) -> Result<Labels, ImportError> {
+    let masks = super::list_images(dir)?;
+    let mut out = Labels::new();
+    for (image, size) in images {
+        let Some(mask) = mask_for(&masks, image)? else {
+            continue;
+        };
+        let roi = mask_box(&mask, *size)?;
+        let name = super::name_of(image);
+        out.entry(name).or_default().push(LabelRow {
+            line: 0,
+            object: None,
+            roi,
+        });
+    }
+    Ok(out)
+}
+
+/// The foreground box of one mask file in the pixels of an image of `size`.
+fn mask_box(mask: &Path, size: (u32, u32)) -> Result<Option<RegionOfInterest>, ImportError> {
+    let img = image::open(mask).map_err(|e| ImportError::Invalid {
+        path: mask.into(),
+        what: format!("mask does not decode: {e}"),
+    })?;
+    let has_alpha = img.color().has_alpha();
+    let rgba = img.into_rgba8();
+    let (mw, mh) = rgba.dimensions();
+    let (mut x0, mut y0, mut x1, mut y1) = (u32::MAX, u32::MAX, 0u32, 0u32);
+    for (x, y, p) in rgba.enumerate_pixels() {
+        let v = if has_alpha {
+            p[3]
+        } else {
+            ((u32::from(p[0]) * 299 + u32::from(p[1]) * 587 + u32::from(p[2]) * 114) / 1000) as u8
+        };
+        if v > 128 {
+            (x0, y0, x1, y1) = (x0.min(x), y0.min(y), x1.max(x + 1), y1.max(y + 1));
+        }
+    }
+    if x0 == u32::MAX {
+        return Ok(None);
+    }
+    // Pixel edges scale with the image: mask edge e lies at e * W / w in the image.
+    let sx = f64::from(size.0) / f64::from(mw);
+    let sy = f64::from(size.1) / f64::from(mh);
+    let lo = |e: u32, s: f64| (f64::from(e) * s).floor() as u32;
+    let hi = |e: u32, s: f64, max: u32| ((f64::from(e) * s).ceil() as u32).min(max);
+    let (bx0, by0) = (lo(x0, sx), lo(y0, sy));
+    let (bx1, by1) = (hi(x1, sx, size.0), hi(y1, sy, size.1));
+    Ok(Some(RegionOfInterest {
+        x_offset: bx0,
+        y_offset: by0,
+        width: (bx1 - bx0).max(1),
+        height: (by1 - by0).max(1),
+        do_rectify: false,
+    }))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn labels_parse_boxes_objects_and_background_rows() {
+        let p = Path::new("l.csv");
+        let l = parse_labels(
+            p,
+            "image,x,y,width,height\na.png,1,2,30,40\nb.png,,,,\na.png,5,5,2,2,mug\n",
+        )
+        .unwrap();
+        assert_eq!(l["a.png"].len(), 2);
+        let a0 = &l["a.png"][0];
+        assert_eq!(a0.roi.map(|r| (r.x_offset, r.height)), Some((1, 40)));
+        assert_eq!(a0.object, None);
+        assert_eq!(l["a.png"][1].object.as_deref(), Some("mug"));
+        assert_eq!(
+            l["b.png"],
+            vec![LabelRow {
+                line: 3,
+                object: None,
+                roi: None
+            }]
+        );
+        let e = parse_labels(p, "a.png,1,2,0,4\n").unwrap_err();
+        assert_eq!(e.to_string(), "l.csv:1: box 0 x 4 is empty");
+        let e = parse_labels(p, "a.png,1,2,3\n").unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "l.csv:1: expected 5 or 6 columns `image,x,y,width,height[,object]`, found 4"
+        );
+    }
+
+    #[test]
+    fn a_mask_becomes_the_box_around_its_foreground_scaled_outward() {
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = tmp.path().to_path_buf();
+        // A 10 x 8 mask with alpha on columns 2..=4 and rows 1..=2, for a 25 x 16 image.
+        let mut m = image::RgbaImage::new(10, 8);
+        for x in 2..=4 {
+            for y in 1..=2 {
+                m.put_pixel(x, y, image::Rgba([0, 0, 0, 255]));
+            }
+        }
+        let mask = dir.join("7-removebg-preview.png");
+        m.save(&mask).unwrap();
+        image::RgbaImage::new(10, 8)
+            .save(dir.join("70-removebg.png"))
+            .unwrap();
+        let images = vec![(dir.join("7.jpg"), (25, 16)), (dir.join("8.jpg"), (25, 16))];
+        let l = labels_from_masks(&dir, &images).unwrap();
+        // Edges 2, 5 scale by 2.5 to 5, 12.5 -> 13; rows 1, 3 by 2 to 2, 6.
+        let r = l["7.jpg"][0].roi.unwrap();
+        assert_eq!((r.x_offset, r.y_offset, r.width, r.height), (5, 2, 8, 4));
+        assert!(!l.contains_key("8.jpg"));
+    }
+}

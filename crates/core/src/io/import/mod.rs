@@ -1,0 +1,573 @@
+//! Imports a real posed image sequence into a session: the images with their poses and
+//! intrinsics from a TUM RGB-D trajectory plus pinhole intrinsics, a NeRF / instant-ngp /
+//! nerfstudio `transforms.json`, a COLMAP model, an LLFF `poses_bounds.npy` or an IDR / DTU
+//! `cameras.npz`; labels from a CSV (`image,x,y,width,height[,object]`) or a mask folder.
+//!
+//! Frames: the world frame of the poses becomes `odom`; `base_link` IS the camera, so
+//! /tf_static publishes an identity `base_link -> camera_optical_frame` and /odom carries the
+//! camera pose (optical centre, OpenCV axes: z forward, x right, y down). The world need not
+//! be z-up nor metric. No /cmd_vel is written: the motion between frames is unknown, so the
+//! fuser uses no motion model for such a session. Each frame has its own CameraInfo, with the
+//! lens distortion as `plumb_bob` `d`.
+//!
+//! Matching (TUM): images are sorted by file name. If every file stem parses as a decimal
+//! number of seconds (TUM's `1305031102.175304.png`), each image is stamped with it and posed
+//! by interpolating the trajectory (at most [`tum::MAX_EXTRAPOLATION_NS`] beyond its ends);
+//! otherwise image i takes trajectory line i (stamp and pose), and the counts must be equal.
+//! Pose files without time (the others) are ordered by file name, numbers compared as numbers
+//! (`2.jpg` before `10.jpg`), and stamped [`CAPTURE_PERIOD_NS`] apart from
+//! [`CAPTURE_START_NS`].
+//!
+//! Invariants: every error names the file and line (or image, frame or entry) at fault; the
+//! output is written through `.partial` and only renamed when complete.
+
+mod labels;
+mod tum;
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use thiserror::Error;
+
+pub use labels::{LabelRow, Labels, labels_from_masks, parse_labels};
+pub use tum::{MAX_EXTRAPOLATION_NS, TrajectoryPose, parse_seconds_ns, parse_trajectory};
+
+use crate::io::capture::{CaptureError, Intrinsics, PosedImage};
+use crate::io::msgs::pose_from_iso;
+use crate::io::msgs::{
+    CameraInfo, CompressedImage, Header, ObjectLabel, Odometry, TfMessage, TransformStamped, Twist,
+};
+use crate::io::session::{SessionError, SessionWriter, Topics};
+use crate::types::geometry::{Camera, Iso3};
+use crate::types::lens::Distortion;
+
+/// Stamp of the first frame of a capture whose pose file has no time: 1 s after the epoch.
+pub const CAPTURE_START_NS: i64 = 1_000_000_000;
+/// Spacing of the frames of a capture whose pose file has no time: 0.1 s.
+pub const CAPTURE_PERIOD_NS: i64 = 100_000_000;
+const IMAGE_EXTENSIONS: [&str; 3] = ["png", "jpg", "jpeg"];
+
+/// Why a sequence cannot be imported; each names the file at fault.
+#[derive(Debug, Error)]
+pub enum ImportError {
+    /// A file or folder cannot be read.
+    #[error("{path}: {source}", path = path.display())]
+    Io {
+        /// The file or folder.
+        path: PathBuf,
+        /// The reason.
+        #[source]
+        source: std::io::Error,
+    },
+    /// A line of a text input (trajectory, labels) is malformed.
+    #[error("{path}:{line}: {what}", path = path.display())]
+    Line {
+        /// The file.
+        path: PathBuf,
+        /// 1-based line number.
+        line: usize,
+        /// What is wrong.
+        what: String,
+    },
+    /// A file (an image, a mask, the trajectory as a whole) cannot be used.
+    #[error("{path}: {what}", path = path.display())]
+    Invalid {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        what: String,
+    },
+    /// A pose file of a capture cannot be read.
+    #[error(transparent)]
+    Capture(#[from] CaptureError),
+    /// Boxed: a session error carries an MCAP error and the place it happened.
+    #[error(transparent)]
+    Session(Box<SessionError>),
+}
+
+impl From<SessionError> for ImportError {
+    fn from(e: SessionError) -> Self {
+        Self::Session(Box::new(e))
+    }
+}
+
+/// Where the poses and intrinsics of the images come from.
+#[derive(Debug, Clone, PartialEq)]
+pub enum PoseFile {
+    /// A TUM trajectory for the images of a folder, with one pinhole camera for all.
+    Tum {
+        /// The trajectory file.
+        trajectory: PathBuf,
+        /// The folder of images.
+        images: PathBuf,
+        /// fx, fy, cx, cy in pixels of the image files.
+        camera: [f64; 4],
+        /// Lens distortion of the image files (zero for none).
+        distortion: Distortion,
+    },
+    /// NeRF / instant-ngp / nerfstudio `transforms.json` (image paths relative to it).
+    Nerf {
+        /// The `transforms.json` file.
+        transforms: PathBuf,
+    },
+    /// A COLMAP model folder (`cameras`/`images` as `.txt` or `.bin`).
+    Colmap {
+        /// The folder holding the model files.
+        model: PathBuf,
+        /// The folder the model's image names are relative to.
+        images: PathBuf,
+    },
+    /// LLFF `poses_bounds.npy`, one row per image of the folder in string order.
+    Llff {
+        /// The `.npy` file.
+        poses_bounds: PathBuf,
+        /// The folder of images.
+        images: PathBuf,
+    },
+    /// IDR / NeuS / DTU `cameras.npz` (`world_mat_i` per image of the folder, in name order).
+    Idr {
+        /// The `.npz` file.
+        cameras: PathBuf,
+        /// The folder of images.
+        images: PathBuf,
+        /// x0, y0, width, height of the calibrated image that the files are a crop of.
+        crop: Option<[f64; 4]>,
+    },
+}
+
+/// What to import and how to label it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ImportOptions {
+    /// Poses and intrinsics.
+    pub poses: PoseFile,
+    /// Labels CSV `image,x,y,width,height[,object]`.
+    pub labels: Option<PathBuf>,
+    /// Folder of masks, one per labelled image, turned into rectangles.
+    pub masks: Option<PathBuf>,
+    /// Object name written on /labels for rows (and masks) that name none.
+    pub object: String,
+}
+
+/// What an import wrote.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ImportStats {
+    /// The session written.
+    pub path: PathBuf,
+    /// Camera frames written.
+    pub frames: usize,
+    /// Frames with at least one label message.
+    pub labelled: usize,
+    /// Whether the images were stamped by their TUM file names (else in order).
+    pub timestamps_from_names: bool,
+    /// Frames whose intrinsics carry a lens distortion.
+    pub distorted: usize,
+}
+
+/// One image to write: its file, stamp, camera pose and intrinsics.
+#[derive(Debug, Clone, PartialEq)]
+struct Frame {
+    path: PathBuf,
+    stamp_ns: i64,
+    world_from_camera: Iso3,
+    intrinsics: Intrinsics,
+}
+
+fn list_images(dir: &Path) -> Result<Vec<PathBuf>, ImportError> {
+    let io = |source| ImportError::Io {
+        path: dir.into(),
+        source,
+    };
+    let mut files = Vec::new();
+    for entry in std::fs::read_dir(dir).map_err(io)? {
+        let p = entry.map_err(io)?.path();
+        let ext = p
+            .extension()
+            .and_then(|e| e.to_str())
+            .map(str::to_ascii_lowercase)
+            .unwrap_or_default();
+        if p.is_file() && IMAGE_EXTENSIONS.contains(&ext.as_str()) {
+            files.push(p);
+        }
+    }
+    files.sort_by(|a, b| a.file_name().cmp(&b.file_name()));
+    if files.is_empty() {
+        return Err(ImportError::Invalid {
+            path: dir.into(),
+            what: "no .png/.jpg/.jpeg images".into(),
+        });
+    }
+    Ok(files)
+}
+
+/// Sort key comparing runs of digits as numbers: `IMG_2` before `IMG_10`.
+fn natural_key(name: &str) -> Vec<(u8, u64, String)> {
+    let mut key = Vec::new();
+    let mut rest = name;
+    while !rest.is_empty() {
+        let digits = rest.bytes().take_while(u8::is_ascii_digit).count();
+        let (run, tail) = if digits > 0 {
+            rest.split_at(digits)
+        } else {
+            rest.split_at(
+                rest.find(|c: char| c.is_ascii_digit())
+                    .unwrap_or(rest.len()),
+            )
+        };
+        key.push(match run.parse::<u64>() {
+            Ok(n) if digits > 0 => (0, n, run.to_owned()),
+            _ => (1, 0, run.to_owned()),
+        });
+        rest = tail;
+    }
+    key
+}
+
+/// The frames of a pose file without time, in natural file-name order, stamped at a fixed
+/// period.
+fn capture_frames(mut images: Vec<PosedImage>) -> Vec<Frame> {
+    images.sort_by_cached_key(|p| natural_key(&name_of(&p.path)));
+    images
+        .into_iter()
+        .enumerate()
+        .map(|(i, p)| Frame {
+            path: p.path,
+            stamp_ns: CAPTURE_START_NS + i as i64 * CAPTURE_PERIOD_NS,
+            world_from_camera: p.world_from_camera,
+            intrinsics: p.intrinsics,
+        })
+        .collect()
+}
+
+/// The frames to write and whether their stamps came from TUM file names.
+fn frames(poses: &PoseFile) -> Result<(Vec<Frame>, bool), ImportError> {
+    use crate::io::capture::{read_colmap, read_idr, read_llff, read_nerf};
+    let posed = match poses {
+        PoseFile::Tum {
+            trajectory,
+            images,
+            camera,
+            distortion,
+        } => {
+            let first = list_images(images)?;
+            let size = crate::io::capture::image_size(&first[0])?;
+            let intrinsics = tum_intrinsics(trajectory, *camera, *distortion, size)?;
+            return tum::tum_frames(trajectory, images, intrinsics);
+        }
+        PoseFile::Nerf { transforms } => read_nerf(transforms)?,
+        PoseFile::Colmap { model, images } => read_colmap(model, images)?,
+        PoseFile::Llff {
+            poses_bounds,
+            images,
+        } => read_llff(poses_bounds, images)?,
+        PoseFile::Idr {
+            cameras,
+            images,
+            crop,
+        } => read_idr(cameras, images, *crop)?,
+    };
+    Ok((capture_frames(posed), false))
+}
+
+/// The `--camera` intrinsics of a TUM import, refused unless a pinhole camera.
+fn tum_intrinsics(
+    trajectory: &Path,
+    camera: [f64; 4],
+    distortion: Distortion,
+    (width, height): (u32, u32),
+) -> Result<Intrinsics, ImportError> {
+    let [fx, fy, cx, cy] = camera;
+    let d = distortion.to_plumb_bob();
+    Camera::from_k(width, height, [fx, 0.0, cx, 0.0, fy, cy, 0.0, 0.0, 1.0])
+        .filter(|_| d.iter().all(|v| v.is_finite()))
+        .map(|camera| Intrinsics { camera, distortion })
+        .ok_or_else(|| ImportError::Invalid {
+            path: trajectory.into(),
+            what: format!(
+                "--camera {fx},{fy},{cx},{cy}: focal lengths must be positive and all finite \
+                 (and the distortion finite)"
+            ),
+        })
+}
+
+/// Imports the sequence into `out` (via `out.partial`); `progress(done, total)` per frame.
+pub fn import(
+    opts: &ImportOptions,
+    out: &Path,
+    progress: &mut dyn FnMut(usize, usize),
+) -> Result<ImportStats, ImportError> {
+    let (frames, timestamps_from_names) = frames(&opts.poses)?;
+    check_stamps(&frames)?;
+    let labels = read_labels(opts, &frames)?;
+    let result = write_session(opts, out, &frames, labels.as_ref(), progress);
+    if result.is_err() {
+        // An error leaves nothing behind: no final file, no partial one.
+        let _ = std::fs::remove_file(crate::io::output::partial_path(out));
+    }
+    result.map(|(path, labelled)| ImportStats {
+        path,
+        frames: frames.len(),
+        labelled,
+        timestamps_from_names,
+        distorted: frames
+            .iter()
+            .filter(|f| !f.intrinsics.distortion.is_zero())
+            .count(),
+    })
+}
+
+/// The labels from the CSV or the masks (with the file they came from), checked to name
+/// only imported images.
+fn read_labels(
+    opts: &ImportOptions,
+    frames: &[Frame],
+) -> Result<Option<(PathBuf, Labels)>, ImportError> {
+    let labels = match (&opts.labels, &opts.masks) {
+        (Some(p), _) => {
+            let text = std::fs::read_to_string(p).map_err(|source| ImportError::Io {
+                path: p.clone(),
+                source,
+            })?;
+            (p.clone(), parse_labels(p, &text)?)
+        }
+        (None, Some(dir)) => {
+            let sized: Vec<(PathBuf, (u32, u32))> = frames
+                .iter()
+                .map(|f| {
+                    let c = &f.intrinsics.camera;
+                    (f.path.clone(), (c.width, c.height))
+                })
+                .collect();
+            (dir.clone(), labels_from_masks(dir, &sized)?)
+        }
+        (None, None) => return Ok(None),
+    };
+    let names: Vec<String> = frames.iter().map(|f| name_of(&f.path)).collect();
+    if let Some((name, rows)) = labels.1.iter().find(|(n, _)| !names.contains(n)) {
+        return Err(ImportError::Line {
+            path: labels.0.clone(),
+            line: rows.first().map_or(0, |r| r.line),
+            what: format!("image {name:?} is not among the imported images"),
+        });
+    }
+    Ok(Some(labels))
+}
+
+/// File name of `p` as text (lossy), or empty.
+fn name_of(p: &Path) -> String {
+    p.file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default()
+}
+
+/// Refuses image stamps that do not increase or that lie before 1970.
+fn check_stamps(frames: &[Frame]) -> Result<(), ImportError> {
+    if let Some(w) = frames
+        .windows(2)
+        .position(|w| w[1].stamp_ns <= w[0].stamp_ns)
+    {
+        return Err(ImportError::Invalid {
+            path: frames[w + 1].path.clone(),
+            what: "timestamp is not after the previous image's".into(),
+        });
+    }
+    if frames.first().is_some_and(|f| f.stamp_ns < 0) {
+        return Err(ImportError::Invalid {
+            path: frames[0].path.clone(),
+            what: "stamps before 1970 cannot be MCAP log times".into(),
+        });
+    }
+    Ok(())
+}
+
+/// The image file as PNG bytes and its size.
+fn png_of(path: &Path) -> Result<(Vec<u8>, u32, u32), ImportError> {
+    let invalid = |what: String| ImportError::Invalid {
+        path: path.into(),
+        what,
+    };
+    let bytes = std::fs::read(path).map_err(|source| ImportError::Io {
+        path: path.into(),
+        source,
+    })?;
+    let img = image::load_from_memory(&bytes)
+        .map_err(|e| invalid(format!("image does not decode: {e}")))?
+        .into_rgb8();
+    let (w, h) = img.dimensions();
+    let png = crate::types::image::encode_png(w, h, img.as_raw()).map_err(invalid)?;
+    Ok((png, w, h))
+}
+
+fn write_session(
+    opts: &ImportOptions,
+    out: &Path,
+    frames: &[Frame],
+    labels: Option<&(PathBuf, Labels)>,
+    progress: &mut dyn FnMut(usize, usize),
+) -> Result<(PathBuf, usize), ImportError> {
+    let topics = Topics::default();
+    let mut writer = SessionWriter::create(out)?;
+    let first_ns = frames[0].stamp_ns;
+    let tf = TfMessage {
+        transforms: vec![TransformStamped {
+            header: Header::new(first_ns, "base_link"),
+            child_frame_id: "camera_optical_frame".into(),
+            translation: [0.0; 3],
+            rotation_xyzw: [0.0, 0.0, 0.0, 1.0],
+        }],
+    };
+    writer.write(&topics.tf_static, first_ns, &tf)?;
+    let mut labelled = 0;
+    for (k, f) in frames.iter().enumerate() {
+        let (png, w, h) = png_of(&f.path)?;
+        let c = &f.intrinsics.camera;
+        if (w, h) != (c.width, c.height) {
+            return Err(ImportError::Invalid {
+                path: f.path.clone(),
+                what: format!(
+                    "image is {w} x {h} but its intrinsics are for {} x {}",
+                    c.width, c.height
+                ),
+            });
+        }
+        let stamp_ns = f.stamp_ns;
+        let odom = Odometry {
+            header: Header::new(stamp_ns, "odom"),
+            child_frame_id: "base_link".into(),
+            pose: pose_from_iso(&f.world_from_camera),
+            pose_covariance: [0.0; 36],
+            twist: Twist::default(),
+            twist_covariance: [0.0; 36],
+        };
+        writer.write(&topics.odom, stamp_ns, &odom)?;
+        let header = Header::new(stamp_ns, "camera_optical_frame");
+        let image = CompressedImage {
+            header: header.clone(),
+            format: "png".into(),
+            data: png,
+        };
+        writer.write(&topics.compressed_image, stamp_ns, &image)?;
+        writer.write(
+            &topics.camera_info,
+            stamp_ns,
+            &camera_info(&header, &f.intrinsics),
+        )?;
+        if let Some((lp, l)) = labels
+            && let Some(rows) = l.get(&name_of(&f.path))
+        {
+            for label in frame_labels(opts, lp, rows, &header, (w, h))? {
+                writer.write(&topics.labels, stamp_ns, &label)?;
+            }
+            labelled += 1;
+        }
+        progress(k + 1, frames.len());
+    }
+    let path = writer.finish()?;
+    Ok((path, labelled))
+}
+
+/// CameraInfo of one frame: K, and the distortion as `plumb_bob` d (empty when none).
+fn camera_info(header: &Header, i: &Intrinsics) -> CameraInfo {
+    let c = &i.camera;
+    let mut info = CameraInfo::pinhole(header.clone(), c.width, c.height, c.fx, c.fy, c.cx, c.cy);
+    if !i.distortion.is_zero() {
+        info.distortion_model = "plumb_bob".into();
+        info.d = i.distortion.to_plumb_bob();
+    }
+    info
+}
+
+/// One label message per object named by a frame's rows (in name order), each with its
+/// rectangles; a background row gives a message without rectangles.
+fn frame_labels(
+    opts: &ImportOptions,
+    lp: &Path,
+    rows: &[LabelRow],
+    header: &Header,
+    (w, h): (u32, u32),
+) -> Result<Vec<ObjectLabel>, ImportError> {
+    let mut by_object: BTreeMap<&str, Vec<_>> = BTreeMap::new();
+    for row in rows {
+        let object = row.object.as_deref().unwrap_or(&opts.object);
+        let regions = by_object.entry(object).or_default();
+        let Some(r) = row.roi else { continue };
+        if u64::from(r.x_offset) + u64::from(r.width) > u64::from(w)
+            || u64::from(r.y_offset) + u64::from(r.height) > u64::from(h)
+        {
+            return Err(ImportError::Line {
+                path: lp.into(),
+                line: row.line,
+                what: format!(
+                    "box x {} y {} {} x {} leaves the {w} x {h} image",
+                    r.x_offset, r.y_offset, r.width, r.height
+                ),
+            });
+        }
+        regions.push(r);
+    }
+    Ok(by_object
+        .into_iter()
+        .map(|(object, regions)| ObjectLabel {
+            header: header.clone(),
+            object: object.to_owned(),
+            regions,
+        })
+        .collect())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn names_sort_with_numbers_as_numbers() {
+        let mut v = vec![
+            "10.jpg",
+            "2.jpg",
+            "1.jpg",
+            "IMG_10.png",
+            "IMG_9.png",
+            "a.png",
+        ];
+        v.sort_by_key(|n| natural_key(n));
+        assert_eq!(
+            v,
+            [
+                "1.jpg",
+                "2.jpg",
+                "10.jpg",
+                "IMG_9.png",
+                "IMG_10.png",
+                "a.png"
+            ]
+        );
+    }
+
+    #[test]
+    fn a_frame_gets_one_label_per_object() {
+        let rows = parse_labels(
+            Path::new("l.csv"),
+            "a.png,1,1,2,2,mug\na.png,5,5,2,2\na.png,3,3,2,2,mug\n",
+        )
+        .unwrap();
+        let opts = ImportOptions {
+            poses: PoseFile::Nerf {
+                transforms: "t.json".into(),
+            },
+            labels: None,
+            masks: None,
+            object: "object".into(),
+        };
+        let h = Header::new(1, "cam");
+        let l = frame_labels(&opts, Path::new("l.csv"), &rows["a.png"], &h, (10, 10)).unwrap();
+        let got: Vec<(&str, usize)> = l
+            .iter()
+            .map(|m| (m.object.as_str(), m.regions.len()))
+            .collect();
+        assert_eq!(got, [("mug", 2), ("object", 1)]);
+        let e = frame_labels(&opts, Path::new("l.csv"), &rows["a.png"], &h, (6, 6)).unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "l.csv:2: box x 5 y 5 2 x 2 leaves the 6 x 6 image"
+        );
+    }
+}

@@ -1,0 +1,256 @@
+//! TUM RGB-D trajectories (`timestamp tx ty tz qx qy qz qw`, camera in world) and the
+//! matching of a folder of images to them.
+//!
+//! Invariants: stamps are parsed exactly (decimal seconds to ns, no float rounding); a
+//! trajectory's stamps strictly increase; an image is posed by interpolation at most
+//! [`MAX_EXTRAPOLATION_NS`] beyond the trajectory's ends.
+
+use std::path::{Path, PathBuf};
+
+use super::{Frame, ImportError, list_images};
+use crate::io::capture::Intrinsics;
+use crate::types::geometry::{Iso3, iso_from_parts};
+use crate::types::track::PoseTrack;
+
+/// An image stamp may lie this far outside the trajectory's time span.
+pub const MAX_EXTRAPOLATION_NS: i64 = crate::types::track::POSE_TOLERANCE_NS;
+
+/// The frames of a TUM import: the images of `images_dir` in file-name order, stamped by
+/// their names when every name is decimal seconds (and posed by interpolation), else
+/// matched to the trajectory's lines in order; and whether the names were stamps.
+pub(super) fn tum_frames(
+    trajectory: &Path,
+    images_dir: &Path,
+    intrinsics: Intrinsics,
+) -> Result<(Vec<Frame>, bool), ImportError> {
+    let text = std::fs::read_to_string(trajectory).map_err(|source| ImportError::Io {
+        path: trajectory.into(),
+        source,
+    })?;
+    let traj = parse_trajectory(trajectory, &text)?;
+    let images = list_images(images_dir)?;
+    let (posed, from_names) = pose_images(trajectory, images_dir, &traj, &images)?;
+    let frames = images
+        .into_iter()
+        .zip(posed)
+        .map(|(path, (stamp_ns, world_from_camera))| Frame {
+            path,
+            stamp_ns,
+            world_from_camera,
+            intrinsics,
+        })
+        .collect();
+    Ok((frames, from_names))
+}
+
+/// One trajectory line: camera pose in the world frame at a stamp.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TrajectoryPose {
+    /// Stamp of the pose, ns since the Unix epoch (TUM's decimal seconds, exactly).
+    pub stamp_ns: i64,
+    /// Camera (optical centre, OpenCV axes) in the trajectory's world frame.
+    pub world_from_camera: Iso3,
+    /// 1-based line of the file it came from.
+    pub line: usize,
+}
+
+/// Parses decimal seconds (`1305031102.175304`, `12`, `-0.5`) into nanoseconds exactly.
+pub fn parse_seconds_ns(s: &str) -> Option<i64> {
+    let (neg, body) = match s.strip_prefix('-') {
+        Some(b) => (true, b),
+        None => (false, s),
+    };
+    let (int, frac) = body.split_once('.').unwrap_or((body, ""));
+    if int.is_empty() && frac.is_empty() {
+        return None;
+    }
+    let digits = |t: &str| t.bytes().all(|b| b.is_ascii_digit());
+    if !digits(int) || !digits(frac) || frac.len() > 9 || int.len() > 10 {
+        return None;
+    }
+    let sec: i64 = if int.is_empty() { 0 } else { int.parse().ok()? };
+    let frac_ns: i64 = if frac.is_empty() {
+        0
+    } else {
+        format!("{frac:0<9}").parse().ok()?
+    };
+    let ns = sec * 1_000_000_000 + frac_ns;
+    Some(if neg { -ns } else { ns })
+}
+
+/// Parses a TUM trajectory; `#` starts a comment, blank lines are skipped.
+pub fn parse_trajectory(path: &Path, text: &str) -> Result<Vec<TrajectoryPose>, ImportError> {
+    let mut out: Vec<TrajectoryPose> = Vec::new();
+    for (i, raw) in text.lines().enumerate() {
+        let line = i + 1;
+        let content = raw.split('#').next().unwrap_or("").trim();
+        if content.is_empty() {
+            continue;
+        }
+        let err = |what: String| ImportError::Line {
+            path: path.into(),
+            line,
+            what,
+        };
+        let fields: Vec<&str> = content.split_whitespace().collect();
+        if fields.len() != 8 {
+            return Err(err(format!(
+                "expected 8 fields `timestamp tx ty tz qx qy qz qw`, found {}",
+                fields.len()
+            )));
+        }
+        let stamp_ns = parse_seconds_ns(fields[0])
+            .ok_or_else(|| err(format!("timestamp {:?} is not decimal seconds", fields[0])))?;
+        let mut v = [0.0f64; 7];
+        for (k, f) in fields[1..].iter().enumerate() {
+            v[k] = f
+                .parse::<f64>()
+                .ok()
+                .filter(|x| x.is_finite())
+                .ok_or_else(|| err(format!("field {} ({f:?}) is not a finite number", k + 2)))?;
+        }
+        let world_from_camera = iso_from_parts([v[0], v[1], v[2]], [v[3], v[4], v[5], v[6]])
+            .ok_or_else(|| err("quaternion has zero length".into()))?;
+        if let Some(prev) = out.last()
+            && stamp_ns <= prev.stamp_ns
+        {
+            return Err(err(format!(
+                "timestamp {} is not after the previous line's ({})",
+                fields[0],
+                crate::io::session::fmt_ns(prev.stamp_ns.max(0) as u64)
+            )));
+        }
+        out.push(TrajectoryPose {
+            stamp_ns,
+            world_from_camera,
+            line,
+        });
+    }
+    if out.is_empty() {
+        return Err(ImportError::Invalid {
+            path: path.into(),
+            what: "trajectory has no poses".into(),
+        });
+    }
+    Ok(out)
+}
+
+/// The camera pose at `stamp_ns` by interpolation (across any interval: a trajectory may be
+/// sparse by design), at most [`MAX_EXTRAPOLATION_NS`] beyond its ends; or why not.
+fn pose_at(traj: &[TrajectoryPose], stamp_ns: i64) -> Result<Iso3, String> {
+    let track = PoseTrack::new(
+        traj.iter()
+            .map(|p| (p.stamp_ns, p.world_from_camera))
+            .collect(),
+    );
+    track
+        .interpolated(stamp_ns)
+        .ok_or_else(|| match (traj.first(), traj.last()) {
+            (Some(first), Some(last)) => format!(
+                "stamp {} is outside the trajectory ({} to {}) by more than 50 ms",
+                crate::io::session::fmt_ns(stamp_ns.max(0) as u64),
+                crate::io::session::fmt_ns(first.stamp_ns.max(0) as u64),
+                crate::io::session::fmt_ns(last.stamp_ns.max(0) as u64)
+            ),
+            _ => "empty trajectory".into(),
+        })
+}
+
+/// (stamp, pose) per image, and whether the stamps came from the file names (else image i
+/// took trajectory line i).
+fn pose_images(
+    trajectory: &Path,
+    images_dir: &Path,
+    traj: &[TrajectoryPose],
+    images: &[PathBuf],
+) -> Result<(Vec<(i64, Iso3)>, bool), ImportError> {
+    let stems: Option<Vec<i64>> = images
+        .iter()
+        .map(|p| {
+            p.file_stem()
+                .and_then(|s| s.to_str())
+                .and_then(parse_seconds_ns)
+        })
+        .collect();
+    let Some(stamps) = stems else {
+        if images.len() != traj.len() {
+            return Err(ImportError::Invalid {
+                path: trajectory.into(),
+                what: format!(
+                    "{} poses for {} images in {} (file names are not timestamps, so images are matched to lines in order)",
+                    traj.len(),
+                    images.len(),
+                    images_dir.display()
+                ),
+            });
+        }
+        let posed = traj
+            .iter()
+            .map(|t| (t.stamp_ns, t.world_from_camera))
+            .collect();
+        return Ok((posed, false));
+    };
+    let posed = images
+        .iter()
+        .zip(&stamps)
+        .map(|(p, s)| {
+            pose_at(traj, *s)
+                .map(|pose| (*s, pose))
+                .map_err(|what| ImportError::Invalid {
+                    path: p.clone(),
+                    what,
+                })
+        })
+        .collect::<Result<_, _>>()?;
+    Ok((posed, true))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn seconds_parse_exactly() {
+        assert_eq!(
+            parse_seconds_ns("1305031102.175304"),
+            Some(1_305_031_102_175_304_000)
+        );
+        assert_eq!(parse_seconds_ns("12"), Some(12_000_000_000));
+        assert_eq!(parse_seconds_ns("-0.5"), Some(-500_000_000));
+        assert_eq!(parse_seconds_ns("frame_001"), None);
+        assert_eq!(parse_seconds_ns("."), None);
+        assert_eq!(parse_seconds_ns("1.0000000001"), None);
+    }
+
+    #[test]
+    fn trajectory_errors_name_the_line() {
+        let p = Path::new("traj.txt");
+        let t = parse_trajectory(p, "# tum\n1.0 0 0 0 0 0 0 1\n\n2.5 1 2 3 0 0 0 2 # c\n").unwrap();
+        assert_eq!(t.len(), 2);
+        assert_eq!((t[1].stamp_ns, t[1].line), (2_500_000_000, 4));
+        assert!((t[1].world_from_camera.translation.y - 2.0).abs() < 1e-12);
+        let e = parse_trajectory(p, "1.0 0 0 0 0 0 0 1\n2.0 0 0 x 0 0 0 1\n").unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "traj.txt:2: field 4 (\"x\") is not a finite number"
+        );
+        let e = parse_trajectory(p, "1.0 0 0 0 0 0 0 1\n1.0 0 0 0 0 0 0 1\n").unwrap_err();
+        assert!(
+            e.to_string()
+                .starts_with("traj.txt:2: timestamp 1.0 is not after"),
+            "{e}"
+        );
+        let e = parse_trajectory(p, "1.0 0 0 0 0 0 0 0\n").unwrap_err();
+        assert_eq!(e.to_string(), "traj.txt:1: quaternion has zero length");
+    }
+
+    #[test]
+    fn interpolates_between_lines() {
+        let p = Path::new("t");
+        let t = parse_trajectory(p, "1.0 0 0 0 0 0 0 1\n2.0 2 0 0 0 0 0 1\n").unwrap();
+        let mid = pose_at(&t, 1_250_000_000).unwrap();
+        assert!((mid.translation.x - 0.5).abs() < 1e-12);
+        assert!(pose_at(&t, 2_040_000_000).is_ok());
+        assert!(pose_at(&t, 2_060_000_000).is_err());
+    }
+}
