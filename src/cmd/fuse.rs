@@ -13,7 +13,7 @@ use crate::viz::{
 };
 use objloc_core::fuse::motion::BlurMode;
 use objloc_core::fuse::objects::ObjectParams;
-use objloc_core::fuse::replay::{FuseOptions, Outcome, PoseSource, replay};
+use objloc_core::fuse::replay::{FuseOptions, Outcome, PoseSource, SessionFit, replay};
 use objloc_core::io::session::SessionReader;
 use objloc_core::learn::model::Model;
 use objloc_core::out::report::{Report, file_sha256};
@@ -44,13 +44,16 @@ pub struct Args {
 /// Fusion options shared by `fuse` and `demo`.
 #[derive(Debug, Clone, clap::Args)]
 pub struct FuseArgs {
-    /// Grid bounds in odom, metres. Default: the box around the camera positions, 0.25 m
-    /// margin, at least 4 m in x and y, z from 0 to 0.5 m above the camera.
+    /// Grid bounds in odom, metres. Default for a ground robot (a session with /cmd_vel): the
+    /// box around the camera positions, 0.25 m margin, at least 4 m in x and y, z from 0 to
+    /// 0.5 m above the camera. Without /cmd_vel (hand-held, arm, SfM captures): the region
+    /// the cameras look at, where their optical axes converge, in the session's units.
     #[arg(long, value_name = "XMIN,YMIN,ZMIN,XMAX,YMAX,ZMAX", value_parser = parse_bounds, allow_hyphen_values = true)]
     pub bounds: Option<([f64; 3], [f64; 3])>,
-    /// Cell edge length, metres (the paper: 0.04).
-    #[arg(long, default_value_t = 0.04, value_name = "M")]
-    pub voxel: f64,
+    /// Cell edge length, metres. Default: 0.04 (the paper's) for a ground robot; with bounds
+    /// from where the cameras look, 1/200 of their longest side.
+    #[arg(long, value_name = "M")]
+    pub voxel: Option<f64>,
     /// Prior probability of a cell. Default: the model's base rate (fraction of positive
     /// training tiles), against which its probabilities are calibrated.
     #[arg(long, value_name = "P")]
@@ -139,7 +142,7 @@ impl FuseArgs {
     pub fn options(&self) -> FuseOptions {
         FuseOptions {
             bounds_m: self.bounds,
-            voxel_size_m: self.voxel,
+            voxel_size_m: self.voxel.unwrap_or(FuseOptions::default().voxel_size_m),
             prior: self.prior,
             sigma_v_mps: self.sigma_v,
             sigma_w_radps: self.sigma_w,
@@ -154,6 +157,11 @@ impl FuseArgs {
             poses: self.poses,
             refine_poses: !self.no_refine_poses,
             refine_floor: !self.no_floor,
+            fit: SessionFit {
+                bounds: self.bounds.is_none(),
+                voxel: self.voxel.is_none(),
+                refinement: !self.refine_poses && !self.no_refine_poses,
+            },
         }
         .normalised()
     }
@@ -227,7 +235,7 @@ pub fn fuse(
     timing.insert("replay".to_owned(), t_replay.as_secs_f64() * 1e3);
     let report = Report::new(
         &outcome,
-        &options,
+        &outcome.options,
         &session.display().to_string(),
         session_sha256,
         &model_path.display().to_string(),
@@ -287,6 +295,9 @@ pub fn print_summary(f: &Fused) {
             o.peak_probability,
             o.mean_probability
         );
+    }
+    for c in &r.fitted {
+        println!("fitted to the session: {c}");
     }
     if r.options.refine_poses {
         print_refinement(r);

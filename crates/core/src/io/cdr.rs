@@ -14,36 +14,64 @@ pub const CDR_LE_HEADER: [u8; 4] = [0x00, 0x01, 0x00, 0x00];
 /// Why a CDR payload could not be decoded; offsets are bytes from the start of the payload.
 #[derive(Debug, Error, PartialEq, Eq, Clone)]
 pub enum CdrError {
+    /// The payload is shorter than the 4-byte encapsulation header.
     #[error("payload of {len} bytes is too short for the 4-byte CDR encapsulation header")]
-    NoHeader { len: usize },
+    NoHeader {
+        /// Length of the whole payload, bytes (0 to 3).
+        len: usize,
+    },
+    /// The encapsulation header names a representation other than plain CDR, LE or BE.
     #[error(
         "unsupported CDR encapsulation {kind:#06x} (only CDR_LE 0x0001 and CDR_BE 0x0000 are read)"
     )]
-    Encapsulation { kind: u16 },
+    Encapsulation {
+        /// Representation identifier: the header's first two bytes, read big endian.
+        kind: u16,
+    },
+    /// The payload ends inside a field.
     #[error(
         "payload cut short: needed {needed} bytes at offset {offset} for {what}, only {available} left"
     )]
     Short {
+        /// The field being read, e.g. `header.stamp.sec`.
         what: &'static str,
+        /// Where the field starts, after its alignment padding.
         offset: usize,
+        /// Bytes the field needs.
         needed: usize,
+        /// Bytes left in the payload from `offset`.
         available: usize,
     },
+    /// A sequence or string length prefix declares more elements than the rest of the payload
+    /// can hold; refused before anything is allocated.
     #[error(
         "sequence length {declared} for {what} at offset {offset} exceeds the {available} bytes left"
     )]
     Length {
+        /// The sequence being read, e.g. `transforms`.
         what: &'static str,
+        /// Where the length prefix starts, before its alignment padding.
         offset: usize,
+        /// Element count the prefix declares.
         declared: u64,
+        /// Bytes left in the payload after the prefix.
         available: usize,
     },
+    /// A string is not UTF-8 or its last byte is not the NUL terminator.
     #[error("string at offset {offset} is not valid UTF-8 or lacks its NUL terminator")]
-    BadString { offset: usize },
+    BadString {
+        /// Where the string's bytes start, after its length prefix.
+        offset: usize,
+    },
+    /// 4 or more bytes are left after the whole message was decoded: the schema does not
+    /// match the payload (fewer are taken as padding).
     #[error("{count} bytes left over after decoding {what} (payload {len} bytes)")]
     Trailing {
+        /// The message type decoded, e.g. `nav_msgs/msg/Odometry`.
         what: &'static str,
+        /// Bytes left over.
         count: usize,
+        /// Length of the whole payload, header included, bytes.
         len: usize,
     },
 }
@@ -55,6 +83,7 @@ pub struct CdrWriter {
 }
 
 impl CdrWriter {
+    /// An empty payload: just the `CDR_LE` encapsulation header.
     pub fn new() -> Self {
         let mut buf = Vec::with_capacity(256);
         buf.extend_from_slice(&CDR_LE_HEADER);
@@ -67,20 +96,25 @@ impl CdrWriter {
         self.buf.resize(self.buf.len() + pad, 0);
     }
 
+    /// Appends a `uint8` (one byte, no alignment).
     pub fn u8(&mut self, v: u8) {
         self.buf.push(v);
     }
+    /// Appends a `bool` as one byte, 0 or 1.
     pub fn bool(&mut self, v: bool) {
         self.buf.push(u8::from(v));
     }
+    /// Appends a `uint32`, little endian, aligned to 4 bytes.
     pub fn u32(&mut self, v: u32) {
         self.align(4);
         self.buf.extend_from_slice(&v.to_le_bytes());
     }
+    /// Appends an `int32`, little endian, aligned to 4 bytes.
     pub fn i32(&mut self, v: i32) {
         self.align(4);
         self.buf.extend_from_slice(&v.to_le_bytes());
     }
+    /// Appends a `float64`, little endian, aligned to 8 bytes.
     pub fn f64(&mut self, v: f64) {
         self.align(8);
         self.buf.extend_from_slice(&v.to_le_bytes());
@@ -90,24 +124,29 @@ impl CdrWriter {
     pub fn len(&mut self, n: usize) {
         self.u32(u32::try_from(n).unwrap_or(u32::MAX));
     }
+    /// Appends a `string`: a length that counts the NUL terminator, the UTF-8 bytes, NUL.
     pub fn string(&mut self, s: &str) {
         self.len(s.len() + 1);
         self.buf.extend_from_slice(s.as_bytes());
         self.buf.push(0);
     }
+    /// Appends a `uint8[]` sequence: its length, then the bytes.
     pub fn bytes(&mut self, b: &[u8]) {
         self.len(b.len());
         self.buf.extend_from_slice(b);
     }
+    /// Appends a fixed-size `float64[N]` array: the values only, no length prefix.
     pub fn f64_array(&mut self, v: &[f64]) {
         for &x in v {
             self.f64(x);
         }
     }
+    /// Appends a `float64[]` sequence: its length, then the values.
     pub fn f64_seq(&mut self, v: &[f64]) {
         self.len(v.len());
         self.f64_array(v);
     }
+    /// The finished payload, encapsulation header included.
     pub fn finish(self) -> Vec<u8> {
         self.buf
     }
@@ -122,6 +161,8 @@ pub struct CdrReader<'a> {
 }
 
 impl<'a> CdrReader<'a> {
+    /// Starts reading `payload`; fails unless it begins with a `CDR_LE` or `CDR_BE`
+    /// encapsulation header.
     pub fn new(payload: &'a [u8]) -> Result<Self, CdrError> {
         if payload.len() < 4 {
             return Err(CdrError::NoHeader { len: payload.len() });
@@ -144,6 +185,7 @@ impl<'a> CdrReader<'a> {
         self.pos + 4
     }
 
+    /// Bytes not yet read, alignment padding still to skip included.
     pub fn remaining(&self) -> usize {
         self.data.len() - self.pos
     }
@@ -177,18 +219,23 @@ impl<'a> CdrReader<'a> {
         Ok(a)
     }
 
+    /// Reads a `uint8`; `what` names the field in errors.
     pub fn u8(&mut self, what: &'static str) -> Result<u8, CdrError> {
         Ok(self.take(1, what)?[0])
     }
+    /// Reads a `bool`: one byte, any non-zero value is true.
     pub fn bool(&mut self, what: &'static str) -> Result<bool, CdrError> {
         Ok(self.u8(what)? != 0)
     }
+    /// Reads a `uint32`, aligned to 4 bytes, in the payload's byte order.
     pub fn u32(&mut self, what: &'static str) -> Result<u32, CdrError> {
         Ok(u32::from_le_bytes(self.fixed(what)?))
     }
+    /// Reads an `int32`, aligned to 4 bytes, in the payload's byte order.
     pub fn i32(&mut self, what: &'static str) -> Result<i32, CdrError> {
         Ok(i32::from_le_bytes(self.fixed(what)?))
     }
+    /// Reads a `float64`, aligned to 8 bytes, in the payload's byte order.
     pub fn f64(&mut self, what: &'static str) -> Result<f64, CdrError> {
         Ok(f64::from_le_bytes(self.fixed(what)?))
     }
@@ -210,6 +257,7 @@ impl<'a> CdrReader<'a> {
         Ok(declared as usize)
     }
 
+    /// Reads a `string`: UTF-8 ending in NUL (not returned); a length of 0 reads as empty.
     pub fn string(&mut self, what: &'static str) -> Result<String, CdrError> {
         let n = self.seq_len(1, what)?;
         let offset = self.offset();
@@ -224,11 +272,13 @@ impl<'a> CdrReader<'a> {
         String::from_utf8(body.to_vec()).map_err(|_| CdrError::BadString { offset })
     }
 
+    /// Reads a `uint8[]` sequence, borrowed from the payload.
     pub fn bytes(&mut self, what: &'static str) -> Result<&'a [u8], CdrError> {
         let n = self.seq_len(1, what)?;
         self.take(n, what)
     }
 
+    /// Reads a fixed-size `float64[N]` array (no length prefix).
     pub fn f64_array<const N: usize>(&mut self, what: &'static str) -> Result<[f64; N], CdrError> {
         let mut out = [0.0; N];
         for v in &mut out {
@@ -237,6 +287,7 @@ impl<'a> CdrReader<'a> {
         Ok(out)
     }
 
+    /// Reads a `float64[]` sequence; a length the rest of the payload cannot hold is refused.
     pub fn f64_seq(&mut self, what: &'static str) -> Result<Vec<f64>, CdrError> {
         let n = self.seq_len(8, what)?;
         (0..n).map(|_| self.f64(what)).collect()

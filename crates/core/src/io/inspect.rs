@@ -17,48 +17,79 @@ use serde::Serialize;
 use crate::io::session::{Frame, Role, SessionError, SessionMsg, SessionReader, Topics, fmt_ns};
 use crate::types::geometry::Camera;
 
+/// One channel of the file, as `objloc inspect` lists it.
 #[derive(Debug, Clone, Serialize, PartialEq)]
 pub struct TopicSummary {
+    /// Topic name, e.g. `/odom`.
     pub topic: String,
+    /// Schema name as written in the file, e.g. `nav_msgs/msg/Odometry` (JSON key `type`).
     #[serde(rename = "type")]
     pub type_name: String,
+    /// Message encoding of the channel, e.g. `cdr`.
     pub message_encoding: String,
+    /// Messages on the channel (0 for a channel declared but never written to).
     pub count: usize,
     /// The session role of this topic (`odom`, `camera_info`, ...), if any.
     pub role: Option<String>,
+    /// Earliest log time on the channel, ns since the Unix epoch; `None` without messages.
     pub first_log_time_ns: Option<u64>,
+    /// Latest log time on the channel, ns since the Unix epoch; `None` without messages.
     pub last_log_time_ns: Option<u64>,
 }
 
+/// Size and format of a session's first frame.
 #[derive(Debug, Clone, Serialize, PartialEq)]
 pub struct ImageSummary {
+    /// Frame width, pixels.
     pub width: u32,
+    /// Frame height, pixels.
     pub height: u32,
+    /// Format in words, e.g. `png` or `raw rgb8` (see [`Frame::encoding`]).
     pub encoding: String,
 }
 
+/// Everything `objloc inspect` reports on one file; `--json` prints it serialised.
 #[derive(Debug, Clone, Serialize, PartialEq)]
 pub struct Summary {
+    /// The file, as given.
     pub path: String,
+    /// MCAP header profile, e.g. `ros2`; empty if the file declares none.
     pub profile: String,
+    /// MCAP header library: what wrote the file, e.g. `objloc 0.1.0`.
     pub library: String,
+    /// Size of the file, bytes.
     pub file_bytes: u64,
+    /// Bytes from the start of the file that were read as intact records.
     pub bytes_intact: u64,
+    /// Messages in the file, on every topic.
     pub messages: usize,
+    /// Earliest log time, ns since the Unix epoch; `None` without messages.
     pub start_ns: Option<u64>,
+    /// Latest log time, ns since the Unix epoch; `None` without messages.
     pub end_ns: Option<u64>,
+    /// `end_ns - start_ns`, seconds; 0 without messages.
     pub duration_s: f64,
+    /// One row per channel, sorted by topic.
     pub topics: Vec<TopicSummary>,
+    /// Camera frames, compressed and raw together.
     pub frames: usize,
+    /// Size and format of the first frame; `None` without frames.
     pub image: Option<ImageSummary>,
+    /// Pinhole intrinsics from the first CameraInfo; `None` if absent or not a valid pinhole.
     pub intrinsics: Option<Camera>,
+    /// Label messages with at least one region (one message per object and frame).
     pub labelled_frames: usize,
+    /// Label messages with no region: frames marked as not showing their object.
     pub background_frames: usize,
+    /// Objects boxed in at least one label, sorted, each once.
     pub objects_labelled: Vec<String>,
+    /// Whether the file holds any ground truth (true poses or true object boxes).
     pub ground_truth: bool,
+    /// Object names of the ground-truth boxes, in order of first appearance.
     pub ground_truth_objects: Vec<String>,
     /// Session topics (by role) with no message in this file.
     pub missing_topics: Vec<String>,
+    /// Problems that leave the file readable, one line each, in a fixed order.
     pub warnings: Vec<String>,
 }
 

@@ -13,7 +13,9 @@ use crate::io::cdr::{CdrError, CdrReader, CdrWriter};
 /// `std_msgs/Header`, with the stamp held as nanoseconds since the epoch.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct Header {
+    /// `stamp` as ns since the epoch, `sec * 1e9 + nanosec`; negative before 1970.
     pub stamp_ns: i64,
+    /// Coordinate frame the data is associated with, e.g. `odom` or `camera_optical_frame`.
     pub frame_id: String,
 }
 
@@ -27,11 +29,13 @@ pub fn ns_to_time(ns: i64) -> (i32, u32) {
     )
 }
 
+/// Joins `builtin_interfaces/Time` into ns since the epoch; the inverse of [`ns_to_time`].
 pub fn time_to_ns(sec: i32, nanosec: u32) -> i64 {
     i64::from(sec) * 1_000_000_000 + i64::from(nanosec)
 }
 
 impl Header {
+    /// A header stamped `stamp_ns` (ns since the epoch) in frame `frame_id`.
     pub fn new(stamp_ns: i64, frame_id: &str) -> Self {
         Self {
             stamp_ns,
@@ -58,7 +62,9 @@ impl Header {
 /// `geometry_msgs/Pose`: position in metres, orientation as a unit quaternion [x, y, z, w].
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Pose {
+    /// Position [x, y, z] of the pose's origin in the parent frame, metres.
     pub position: [f64; 3],
+    /// Orientation in the parent frame, unit quaternion [x, y, z, w]; identity [0, 0, 0, 1].
     pub orientation_xyzw: [f64; 4],
 }
 
@@ -87,7 +93,9 @@ impl Pose {
 /// `geometry_msgs/Twist`: linear m/s, angular rad/s.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct Twist {
+    /// Linear velocity [x, y, z], m/s.
     pub linear: [f64; 3],
+    /// Angular velocity about [x, y, z], rad/s.
     pub angular: [f64; 3],
 }
 
@@ -107,10 +115,15 @@ impl Twist {
 /// `sensor_msgs/RegionOfInterest`: a pixel rectangle.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct RegionOfInterest {
+    /// Leftmost pixel column of the region (0 if it includes the image's left edge).
     pub x_offset: u32,
+    /// Topmost pixel row of the region (0 if it includes the image's top edge).
     pub y_offset: u32,
+    /// Height of the region, pixels.
     pub height: u32,
+    /// Width of the region, pixels.
     pub width: u32,
+    /// Whether a rectified region should be computed from this raw one; objloc writes false.
     pub do_rectify: bool,
 }
 
@@ -137,14 +150,18 @@ impl RegionOfInterest {
 pub trait RosMessage: Sized {
     /// Full type name, `pkg/msg/Type`.
     const TYPE: &'static str;
+    /// Appends the message's fields to `w`, in the order of the ROS 2 definition.
     fn encode_body(&self, w: &mut CdrWriter);
+    /// Reads the message's fields from `r`; [`RosMessage::from_cdr`] checks what is left.
     fn decode_body(r: &mut CdrReader) -> Result<Self, CdrError>;
 
+    /// The message as a `CDR_LE` payload, encapsulation header included.
     fn to_cdr(&self) -> Vec<u8> {
         let mut w = CdrWriter::new();
         self.encode_body(&mut w);
         w.finish()
     }
+    /// Decodes a whole CDR payload; bytes left over beyond padding are a schema mismatch.
     fn from_cdr(payload: &[u8]) -> Result<Self, CdrError> {
         let mut r = CdrReader::new(payload)?;
         let v = Self::decode_body(&mut r)?;
@@ -157,10 +174,14 @@ pub trait RosMessage: Sized {
     }
 }
 
+/// `sensor_msgs/CompressedImage`: one camera frame as an image file (PNG or JPEG).
 #[derive(Debug, Clone, PartialEq)]
 pub struct CompressedImage {
+    /// Acquisition time of the image; `frame_id` is the camera's optical frame.
     pub header: Header,
+    /// Compression format, e.g. `png` or `jpeg` (objloc reads those two).
     pub format: String,
+    /// The compressed image file's bytes.
     pub data: Vec<u8>,
 }
 
@@ -180,14 +201,22 @@ impl RosMessage for CompressedImage {
     }
 }
 
+/// `sensor_msgs/Image`: an uncompressed image.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Image {
+    /// Acquisition time of the image; `frame_id` is the camera's optical frame.
     pub header: Header,
+    /// Image height, pixels (number of rows).
     pub height: u32,
+    /// Image width, pixels (number of columns).
     pub width: u32,
+    /// Pixel encoding, e.g. `rgb8`, `bgr8` or `mono8` (names from `sensor_msgs/image_encodings`).
     pub encoding: String,
+    /// Whether multi-byte channel values are big endian: 1 if so, 0 if not.
     pub is_bigendian: u8,
+    /// Length of one row, bytes (at least width x bytes per pixel).
     pub step: u32,
+    /// The pixels, row by row from the top: `step * height` bytes.
     pub data: Vec<u8>,
 }
 
@@ -215,19 +244,30 @@ impl RosMessage for Image {
     }
 }
 
+/// `sensor_msgs/CameraInfo`: the calibration of the camera that took the frames.
 #[derive(Debug, Clone, PartialEq)]
 pub struct CameraInfo {
+    /// Acquisition time of the matching image; `frame_id` is the camera's optical frame.
     pub header: Header,
+    /// Image height the camera was calibrated at, pixels.
     pub height: u32,
+    /// Image width the camera was calibrated at, pixels.
     pub width: u32,
+    /// Model of `d`, e.g. `plumb_bob` (k1, k2, t1, t2, k3) or `rational_polynomial`.
     pub distortion_model: String,
+    /// Distortion parameters; their number and meaning depend on `distortion_model`.
     pub d: Vec<f64>,
     /// Row-major 3x3 intrinsics [fx 0 cx; 0 fy cy; 0 0 1].
     pub k: [f64; 9],
+    /// Row-major 3x3 rectification rotation (stereo cameras); identity for a monocular one.
     pub r: [f64; 9],
+    /// Row-major 3x4 projection [fx' 0 cx' Tx; 0 fy' cy' Ty; 0 0 1 0] of the rectified image.
     pub p: [f64; 12],
+    /// Horizontal binning factor; 0 or 1 means no subsampling.
     pub binning_x: u32,
+    /// Vertical binning factor; 0 or 1 means no subsampling.
     pub binning_y: u32,
+    /// Part of the full-resolution image that was captured; all zeros means the whole image.
     pub roi: RegionOfInterest,
 }
 
@@ -293,14 +333,21 @@ impl RosMessage for CameraInfo {
 /// `geometry_msgs/TransformStamped`: `child_frame_id` expressed in `header.frame_id`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct TransformStamped {
+    /// Time of the transform; `frame_id` is the parent frame.
     pub header: Header,
+    /// The frame the transform places in the parent frame.
     pub child_frame_id: String,
+    /// Origin of the child frame in the parent frame [x, y, z], metres.
     pub translation: [f64; 3],
+    /// Orientation of the child frame in the parent frame, unit quaternion [x, y, z, w].
     pub rotation_xyzw: [f64; 4],
 }
 
+/// `tf2_msgs/TFMessage`: a batch of transforms (on `/tf_static`, fixed ones such as the
+/// camera mount).
 #[derive(Debug, Clone, PartialEq)]
 pub struct TfMessage {
+    /// The transforms, each parent-to-child.
     pub transforms: Vec<TransformStamped>,
 }
 
@@ -331,13 +378,20 @@ impl RosMessage for TfMessage {
     }
 }
 
+/// `nav_msgs/Odometry`: an estimate of the robot's pose and velocity.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Odometry {
+    /// Time of the estimate; `frame_id` is the frame of the pose, e.g. `odom`.
     pub header: Header,
+    /// The robot's frame, e.g. `base_link`; the twist is expressed in it.
     pub child_frame_id: String,
+    /// Pose of `child_frame_id` in `header.frame_id`.
     pub pose: Pose,
+    /// Row-major 6x6 covariance of the pose, over (x, y, z, rotation about x, y, z).
     pub pose_covariance: [f64; 36],
+    /// Velocity of the robot, in `child_frame_id`.
     pub twist: Twist,
+    /// Row-major 6x6 covariance of the twist, over (linear x, y, z, angular x, y, z).
     pub twist_covariance: [f64; 36],
 }
 
@@ -363,9 +417,12 @@ impl RosMessage for Odometry {
     }
 }
 
+/// `geometry_msgs/TwistStamped`: a velocity at a time, as on `/cmd_vel`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct TwistStamped {
+    /// Time of the command; `frame_id` is the frame of the twist, e.g. `base_link`.
     pub header: Header,
+    /// The velocity; objloc's commands use linear x (m/s) and angular z (rad/s) only.
     pub twist: Twist,
 }
 
@@ -383,9 +440,12 @@ impl RosMessage for TwistStamped {
     }
 }
 
+/// `geometry_msgs/PoseStamped`: a pose at a time, as on `/ground_truth/pose`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct PoseStamped {
+    /// Time of the pose; `frame_id` is the frame it is expressed in, e.g. `odom`.
     pub header: Header,
+    /// The pose, in `header.frame_id`.
     pub pose: Pose,
 }
 
@@ -407,8 +467,11 @@ impl RosMessage for PoseStamped {
 /// same stamp; no regions = a background-only frame.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ObjectLabel {
+    /// Stamp and frame id of the labelled frame (the same as in its image's header).
     pub header: Header,
+    /// Name of the object labelled.
     pub object: String,
+    /// Pixel rectangles around the object; empty if the frame does not show it.
     pub regions: Vec<RegionOfInterest>,
 }
 
@@ -440,8 +503,11 @@ impl RosMessage for ObjectLabel {
 /// `objloc_msgs/GroundTruth`: true boxes in `odom` (simulation only).
 #[derive(Debug, Clone, PartialEq)]
 pub struct GroundTruth {
+    /// Time of the boxes; `frame_id` is the frame they are in, `odom`.
     pub header: Header,
+    /// Object names; `box_center` and `box_size` hold one entry per name, in this order.
     pub object: Vec<String>,
+    /// Pose of each box (its centre and axes) in `header.frame_id`, metres.
     pub box_center: Vec<Pose>,
     /// Full edge lengths in metres, along the box's own axes.
     pub box_size: Vec<[f64; 3]>,

@@ -5,21 +5,33 @@ use std::path::Path;
 
 use thiserror::Error;
 
+/// Why a `.npy` file could not be written or read.
 #[derive(Debug, Error)]
 pub enum NpyError {
+    /// Reading or writing the file failed.
     #[error("{path}: {source}")]
     Io {
+        /// The file, as displayed in the message.
         path: String,
+        /// The underlying I/O error.
         #[source]
         source: std::io::Error,
     },
+    /// The file is not a `.npy` that [`read_f32`] reads (little-endian float32, C order).
     #[error("{path}: not a .npy file this reader understands: {what}")]
-    Format { path: String, what: String },
+    Format {
+        /// The file, as displayed in the message.
+        path: String,
+        /// What is wrong, e.g. `missing magic` or `bad shape`.
+        what: String,
+    },
 }
 
 /// Element types written by objloc.
 pub trait NpyElem: Copy {
+    /// NumPy dtype string for the header's `descr`, e.g. `<f4` for little-endian float32.
     const DESCR: &'static str;
+    /// Appends the element's bytes, little endian, to `out`.
     fn put(self, out: &mut Vec<u8>);
 }
 impl NpyElem for f32 {
@@ -85,6 +97,8 @@ pub fn encode<T: NpyElem>(shape: &[usize], data: &[T]) -> Vec<u8> {
     out
 }
 
+/// Writes `data` (C order) with `shape` to `path` as `.npy`, atomically: through a
+/// `.partial` file and a rename.
 pub fn write<T: NpyElem>(path: &Path, shape: &[usize], data: &[T]) -> Result<(), NpyError> {
     crate::io::output::write_atomic(path, &encode(shape, data)).map_err(|source| NpyError::Io {
         path: path.display().to_string(),

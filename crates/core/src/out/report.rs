@@ -51,9 +51,13 @@ pub struct Report {
     pub frames: usize,
     /// Frames in the session, fused or not.
     pub frames_in_session: usize,
-    /// The fusion options used (`bounds_m` null = derived from the trajectory; `prior` null = the
-    /// model's base rate).
+    /// The fusion options used, fitted to the session (`bounds_m` null = derived from the
+    /// trajectory; `prior` null = the model's base rate).
     pub options: FuseOptions,
+    /// What the session chose where the options left it free, and why, one line each (empty
+    /// for a ground robot's session with the defaults).
+    #[serde(default)]
+    pub fitted: Vec<String>,
     /// The final belief grid.
     pub grid: GridReport,
     /// Located objects, largest probability mass first.
@@ -102,6 +106,7 @@ impl Report {
             frames: outcome.frames_fused,
             frames_in_session: outcome.data.frames.len(),
             options: options.clone(),
+            fitted: outcome.choices.clone(),
             grid: GridReport {
                 dims: g.spec.dims,
                 voxel_size_m: g.spec.voxel_size_m,

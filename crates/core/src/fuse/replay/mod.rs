@@ -15,12 +15,16 @@
 //! topic and log time; problems that make the result meaningless are errors.
 
 mod check;
+mod fit;
 mod fuser;
 mod pass;
 mod prepare;
 mod session_data;
 
 pub use check::{ROLLBACK_TOLERANCE, RefinementCheck};
+pub use fit::{
+    FITTED_CELLS_LONGEST_SIDE, Fitted, SessionFit, axes_convergence, fit_to_session, view_bounds,
+};
 pub use fuser::Fuser;
 pub use pass::{CORRECTION_RETENTION, MAX_FLOOR_FAILURES};
 pub use session_data::{
@@ -130,6 +134,10 @@ pub struct FuseOptions {
     /// (see [`crate::fuse::floor`]). Absent from reports written before it existed, which did not.
     #[serde(default)]
     pub refine_floor: bool,
+    /// Which of these the session may choose (see [`fit_to_session`]); reports written before
+    /// it existed read as choosing nothing.
+    #[serde(default)]
+    pub fit: SessionFit,
 }
 
 /// Where the replay takes the robot poses of frames from (`--poses`).
@@ -158,6 +166,7 @@ impl Default for FuseOptions {
             poses: PoseSource::Odometry,
             refine_poses: true,
             refine_floor: true,
+            fit: SessionFit::ALL,
         }
     }
 }
@@ -242,6 +251,10 @@ pub struct Outcome {
     pub warnings: Vec<String>,
     /// The check of the refined poses against /odom, when refining.
     pub refinement: Option<RefinementCheck>,
+    /// The options the replay used: the caller's, fitted to the session.
+    pub options: FuseOptions,
+    /// What the session chose for the caller and why ([`fit_to_session`]), one line each.
+    pub choices: Vec<String>,
 }
 
 /// One fused frame in brief, as the report keeps it.
@@ -284,8 +297,8 @@ pub fn replay(
     options: &FuseOptions,
     observers: &mut [&mut dyn Observer],
 ) -> Result<Outcome, ReplayError> {
-    let options = &options.normalised();
-    let ctx = prepare(reader, classifier, options)?;
+    let ctx = prepare(reader, classifier, &options.normalised())?;
+    let options = &ctx.options.clone();
     for o in observers.iter_mut() {
         o.on_start(
             &ctx.data,
@@ -320,8 +333,7 @@ pub fn replay(
 
 fn finish(ctx: Context<'_>, pass: Pass, refinement: Option<RefinementCheck>) -> Outcome {
     let grid = pass.fuser.grid;
-    let options = pass.fuser.options;
-    let with_cells = find_objects_with_cells(&grid, &options.objects);
+    let with_cells = find_objects_with_cells(&grid, &ctx.options.objects);
     let mut object_cells: Vec<usize> = with_cells
         .iter()
         .flat_map(|(_, c)| c.iter().copied())
@@ -337,5 +349,7 @@ fn finish(ctx: Context<'_>, pass: Pass, refinement: Option<RefinementCheck>) -> 
         per_frame: pass.per_frame,
         warnings: ctx.warnings,
         refinement,
+        options: ctx.options,
+        choices: ctx.choices,
     }
 }

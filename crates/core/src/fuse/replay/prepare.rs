@@ -30,6 +30,10 @@ pub(super) struct Context<'a> {
     pub(super) prior: f64,
     pub(super) prepared: Vec<Prepared>,
     pub(super) warnings: Vec<String>,
+    /// The caller's options fitted to the session: what every pass uses.
+    pub(super) options: FuseOptions,
+    /// What the session chose and why.
+    pub(super) choices: Vec<String>,
 }
 
 impl Context<'_> {
@@ -77,6 +81,7 @@ pub(super) fn prepare<'a>(
         data.odom = data.ground_truth_poses.clone();
     }
     let warnings = data.warnings.clone();
+    let fit::Fitted { options, choices } = fit::fit_to_session(options, &data);
     let (lo, hi) = match options.bounds_m {
         Some(b) => b,
         None => data
@@ -101,8 +106,10 @@ pub(super) fn prepare<'a>(
         prior,
         prepared: Vec::new(),
         warnings,
+        options: options.clone(),
+        choices,
     };
-    classify_frames(&mut ctx, classifier, options)?;
+    classify_frames(&mut ctx, classifier, &options)?;
     if ctx.prepared.is_empty() {
         return Err(ReplayError::NothingFused {
             path: ctx.data.path.clone(),
@@ -191,7 +198,8 @@ pub(super) fn classify_frames(
     Ok(())
 }
 
-/// Decodes a frame and checks its size against CameraInfo.
+/// Decodes a frame, checks its size against CameraInfo and rectifies it when the lens is
+/// distorted.
 pub(super) fn decode_frame(
     reader: &SessionReader,
     data: &SessionData,
@@ -211,6 +219,12 @@ pub(super) fn decode_frame(
     let image = frame
         .decode_rgb8()
         .map_err(|source| ReplayError::Frame { at: at(), source })?;
+    let image = match &data.rectifier {
+        Some(r) if (image.width, image.height) == (data.camera.width, data.camera.height) => {
+            r.apply(&image)
+        }
+        _ => image,
+    };
     if (image.width, image.height) != (data.camera.width, data.camera.height) {
         return Err(ReplayError::Invalid {
             at: at(),

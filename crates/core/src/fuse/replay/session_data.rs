@@ -4,6 +4,7 @@ use crate::io::msgs::GroundTruth;
 use crate::io::msgs::iso_from_pose;
 use crate::io::session::{At, Role, SessionMsg, SessionReader, TimedMsg};
 use crate::types::geometry::{Camera, Iso3, iso_from_parts};
+use crate::types::lens::{Distortion, Rectifier};
 use crate::types::track::PoseTrack;
 
 use super::*;
@@ -33,6 +34,11 @@ pub struct SessionData {
     pub path: String,
     /// Pinhole intrinsics from CameraInfo (one camera per session).
     pub camera: Camera,
+    /// The lens distortion of the recorded images (CameraInfo `d`; zero for none).
+    pub distortion: Distortion,
+    /// The remap of a recorded image to the pinhole image of `camera`, when distorted: every
+    /// frame is rectified as it is decoded, so the rest of the replay sees a pinhole camera.
+    pub rectifier: Option<Rectifier>,
     /// CameraInfo's frame id; the mount is the transform to this frame.
     pub camera_frame_id: String,
     /// base_link -> camera optical frame, from /tf_static.
@@ -101,7 +107,7 @@ impl SessionData {
 #[derive(Default)]
 struct Collected {
     warnings: Vec<String>,
-    camera: Option<(Camera, String)>,
+    camera: Option<(Camera, Distortion, String)>,
     /// (parent, child, parent_from_child) from /tf_static.
     transforms: Vec<(String, String, Iso3)>,
     odom: Vec<(i64, Iso3)>,
@@ -115,26 +121,7 @@ impl Collected {
     /// Takes one decoded message (the `raw_index`-th of the reader's).
     fn take(&mut self, m: TimedMsg, raw_index: usize, at: At) -> Result<(), ReplayError> {
         match m.msg {
-            SessionMsg::CameraInfo(ci) => {
-                let cam = Camera::from_info(&ci).ok_or_else(|| ReplayError::Invalid {
-                    at: at.clone(),
-                    what: format!(
-                        "CameraInfo is not a usable pinhole camera (width {}, height {}, K {:?})",
-                        ci.width, ci.height, ci.k
-                    ),
-                })?;
-                match &self.camera {
-                    None => self.camera = Some((cam, ci.header.frame_id.clone())),
-                    Some((c, _)) if *c != cam => {
-                        return Err(ReplayError::Invalid {
-                            at,
-                            what: "CameraInfo changes during the session; objloc fuses one camera"
-                                .into(),
-                        });
-                    }
-                    Some(_) => {}
-                }
-            }
+            SessionMsg::CameraInfo(ci) => self.take_camera(&ci, at)?,
             SessionMsg::TfStatic(tf) => {
                 for t in tf.transforms {
                     let iso = iso_from_parts(t.translation, t.rotation_xyzw).ok_or_else(|| {
@@ -182,6 +169,38 @@ impl Collected {
         Ok(())
     }
 
+    /// Takes one CameraInfo: the first sets the camera; later ones must agree with it to
+    /// [`CAMERA_TOLERANCE_PX`] (calibrations decomposed per view differ by rounding).
+    fn take_camera(
+        &mut self,
+        ci: &crate::io::msgs::CameraInfo,
+        at: At,
+    ) -> Result<(), ReplayError> {
+        let invalid = |what: String| ReplayError::Invalid {
+            at: at.clone(),
+            what,
+        };
+        let cam = Camera::from_info(ci).ok_or_else(|| {
+            invalid(format!(
+                "CameraInfo is not a usable pinhole camera (width {}, height {}, K {:?})",
+                ci.width, ci.height, ci.k
+            ))
+        })?;
+        let d = distortion_of(ci).map_err(invalid)?;
+        match &self.camera {
+            None => self.camera = Some((cam, d, ci.header.frame_id.clone())),
+            Some((c, d0, _)) if !same_camera(c, &cam) || *d0 != d => {
+                return Err(invalid(format!(
+                    "CameraInfo changes during the session (fx {:.3} -> {:.3}, cx {:.3} -> {:.3}, \
+                     {} x {} -> {} x {}); objloc fuses one camera",
+                    c.fx, cam.fx, c.cx, cam.cx, c.width, c.height, cam.width, cam.height
+                )));
+            }
+            Some(_) => {}
+        }
+        Ok(())
+    }
+
     /// The camera mount: the transform to the camera's frame; a bag with a single static
     /// transform is taken to mean that one.
     fn mount(&self, reader: &SessionReader, camera_frame_id: &str) -> Result<Iso3, ReplayError> {
@@ -207,6 +226,40 @@ impl Collected {
     }
 }
 
+/// Largest difference of fx, fy, cx or cy (pixels) between two CameraInfos taken as the same
+/// camera.
+pub const CAMERA_TOLERANCE_PX: f64 = 0.05;
+
+fn same_camera(a: &Camera, b: &Camera) -> bool {
+    (a.width, a.height) == (b.width, b.height)
+        && [a.fx - b.fx, a.fy - b.fy, a.cx - b.cx, a.cy - b.cy]
+            .iter()
+            .all(|d| d.abs() <= CAMERA_TOLERANCE_PX)
+}
+
+/// The distortion a CameraInfo declares, or why objloc cannot represent it: `plumb_bob` and
+/// `rational_polynomial` (with its k4..k6 zero) are radial-tangential; any model with all
+/// coefficients zero is none.
+fn distortion_of(ci: &crate::io::msgs::CameraInfo) -> Result<Distortion, String> {
+    if ci.d.iter().all(|v| *v == 0.0) {
+        return Ok(Distortion::default());
+    }
+    if !ci.d.iter().all(|v| v.is_finite()) {
+        return Err(format!("CameraInfo d {:?} is not finite", ci.d));
+    }
+    let model = ci.distortion_model.as_str();
+    let radial_tangential = model == "plumb_bob"
+        || (model == "rational_polynomial" && ci.d.iter().skip(5).all(|v| *v == 0.0));
+    if !radial_tangential || ci.d.len() > 8 {
+        return Err(format!(
+            "CameraInfo distortion model {model:?} with d {:?} cannot be represented (objloc \
+             handles plumb_bob, the OpenCV radial-tangential model)",
+            ci.d
+        ));
+    }
+    Ok(Distortion::from_plumb_bob(&ci.d))
+}
+
 /// Pass 1: reads and validates everything but pixels.
 pub fn load_session(reader: &SessionReader) -> Result<SessionData, ReplayError> {
     reader.require(Role::CameraInfo)?;
@@ -225,7 +278,7 @@ pub fn load_session(reader: &SessionReader) -> Result<SessionData, ReplayError> 
         let at = reader.at(Some(&m.topic), m.log_time_ns);
         c.take(m, raw_index, at)?;
     }
-    let (camera, camera_frame_id) = c.camera.clone().ok_or_else(|| ReplayError::Invalid {
+    let (camera, distortion, camera_frame_id) = c.camera.clone().ok_or_else(|| ReplayError::Invalid {
         at: At {
             path: reader.path().to_owned(),
             topic: Some(reader.topics().camera_info.clone()),
@@ -244,6 +297,8 @@ pub fn load_session(reader: &SessionReader) -> Result<SessionData, ReplayError> 
     Ok(SessionData {
         path,
         camera,
+        distortion,
+        rectifier: (!distortion.is_zero()).then(|| Rectifier::new(&camera, &distortion)),
         camera_frame_id,
         base_from_camera,
         odom: PoseTrack::new(c.odom),

@@ -29,14 +29,23 @@ pub const MAX_IMAGE_SIDE_PX: u32 = 8192;
 /// Topic names of a session's roles; bags from real robots often use other names.
 #[derive(Debug, Clone, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub struct Topics {
+    /// Camera frames as `sensor_msgs/msg/CompressedImage` (PNG or JPEG).
     pub compressed_image: String,
+    /// Camera frames as raw `sensor_msgs/msg/Image`, for bags without compressed frames.
     pub image: String,
+    /// Camera intrinsics, `sensor_msgs/msg/CameraInfo`.
     pub camera_info: String,
+    /// Static transforms, `tf2_msgs/msg/TFMessage`, among them the camera mount.
     pub tf_static: String,
+    /// The robot's pose and velocity from odometry, `nav_msgs/msg/Odometry`.
     pub odom: String,
+    /// Velocity commands to the robot, `geometry_msgs/msg/TwistStamped`.
     pub cmd_vel: String,
+    /// Object boxes drawn on frames, `objloc_msgs/msg/ObjectLabel`.
     pub labels: String,
+    /// The robot's true pose, `geometry_msgs/msg/PoseStamped` (simulation only).
     pub ground_truth_pose: String,
+    /// The objects' true boxes, `objloc_msgs/msg/GroundTruth` (simulation only).
     pub ground_truth_objects: String,
 }
 
@@ -59,18 +68,28 @@ impl Default for Topics {
 /// The role a topic plays in a session.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
 pub enum Role {
+    /// Camera frames, compressed (PNG or JPEG).
     CompressedImage,
+    /// Camera frames, raw pixels.
     Image,
+    /// Camera intrinsics.
     CameraInfo,
+    /// Static transforms, among them the camera mount.
     TfStatic,
+    /// Odometry: the robot's pose over time.
     Odom,
+    /// Velocity commands.
     CmdVel,
+    /// Object labels of frames.
     Labels,
+    /// The robot's true pose (simulation only).
     GroundTruthPose,
+    /// The objects' true boxes (simulation only).
     GroundTruthObjects,
 }
 
 impl Role {
+    /// Every role, in declaration (and `Ord`) order.
     pub const ALL: [Role; 9] = [
         Role::CompressedImage,
         Role::Image,
@@ -98,6 +117,7 @@ impl Role {
         }
     }
 
+    /// The ROS 2 type, `pkg/msg/Type`, a topic in this role must carry.
     pub fn message_type(self) -> &'static str {
         match self {
             Role::CompressedImage => CompressedImage::TYPE,
@@ -114,6 +134,7 @@ impl Role {
 }
 
 impl Topics {
+    /// The topic name of `role`.
     pub fn get(&self, role: Role) -> &str {
         match role {
             Role::CompressedImage => &self.compressed_image,
@@ -170,8 +191,11 @@ impl Topics {
 /// Where in a session something happened, for one-line errors.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct At {
+    /// The session file.
     pub path: PathBuf,
+    /// Topic of the message concerned, if known.
     pub topic: Option<String>,
+    /// Log time of the message concerned, ns since the Unix epoch, if known.
     pub log_time_ns: Option<u64>,
 }
 
@@ -196,44 +220,88 @@ impl fmt::Display for At {
 /// Why a session could not be read (or written).
 #[derive(Debug, Error)]
 pub enum SessionError {
+    /// Reading, creating, syncing or renaming a file failed.
     #[error("{path}: {source}")]
     Io {
+        /// The file the operation was on.
         path: PathBuf,
+        /// The underlying I/O error.
         #[source]
         source: std::io::Error,
     },
+    /// The file does not start with the MCAP magic.
     #[error("{}: not an MCAP file (starts with {head:02x?}, expected the MCAP magic 89 4d 43 41 50 30 0d 0a)", path.display())]
-    NotMcap { path: PathBuf, head: Vec<u8> },
+    NotMcap {
+        /// The file.
+        path: PathBuf,
+        /// Its first bytes, at most 8.
+        head: Vec<u8>,
+    },
+    /// The MCAP layer failed: a damaged record or chunk on reading, or a write that failed.
     #[error("{at}: {what}: {source}")]
     Mcap {
+        /// Where: on reading, the last intact message before the damage.
         at: At,
+        /// What was being done or what is damaged, in words.
         what: String,
+        /// The MCAP library's error.
         #[source]
         source: mcap::McapError,
     },
+    /// A session-role message's CDR payload does not decode as the role's type.
     #[error("{at}: cannot decode {type_name}: {source}")]
     Decode {
+        /// The message that does not decode.
         at: At,
+        /// The type it was decoded as, `pkg/msg/Type`.
         type_name: String,
+        /// Why decoding failed.
         #[source]
         source: CdrError,
     },
+    /// A session-role topic's schema names another type than the role requires.
     #[error("{at}: schema is {found:?} but this topic must carry {expected}")]
     WrongType {
+        /// The message whose channel has the wrong schema.
         at: At,
+        /// The type the role requires, `pkg/msg/Type`.
         expected: &'static str,
+        /// The schema name the channel declares, as written in the file.
         found: String,
     },
+    /// A session-role channel's message encoding is not `cdr`.
     #[error("{at}: message encoding {found:?} is not supported (objloc reads \"cdr\")")]
-    Encoding { at: At, found: String },
+    Encoding {
+        /// The message whose channel has that encoding.
+        at: At,
+        /// The channel's message encoding, e.g. `json`.
+        found: String,
+    },
+    /// A session-role channel's schema encoding is not `ros2msg`.
     #[error("{at}: schema encoding {found:?} is not supported (objloc reads \"ros2msg\")")]
-    SchemaEncoding { at: At, found: String },
+    SchemaEncoding {
+        /// The message whose channel has that schema.
+        at: At,
+        /// The schema's encoding, e.g. `ros2idl`; empty for a channel without a schema.
+        found: String,
+    },
+    /// Something is inconsistent: a reference to an unknown channel or schema, a frame whose
+    /// image does not decode, or (when writing) a stamp before 1970.
     #[error("{at}: {what}")]
-    Invalid { at: At, what: String },
+    Invalid {
+        /// Where the problem is.
+        at: At,
+        /// What is wrong, in words.
+        what: String,
+    },
+    /// A topic the command needs holds no message.
     #[error("{path}: required topic {topic} ({type_name}) is missing")]
     MissingTopic {
+        /// The session file.
         path: PathBuf,
+        /// The topic name, or `A or B` when either would do (the two image topics).
         topic: String,
+        /// The type the topic must carry, `pkg/msg/Type`.
         type_name: &'static str,
     },
 }
@@ -243,16 +311,23 @@ pub enum SessionError {
 pub enum FramePixels {
     /// PNG or JPEG bytes (`format` as in the CompressedImage).
     Encoded {
+        /// The CompressedImage `format`, e.g. `png` or `jpeg`.
         format: String,
+        /// The compressed image file's bytes.
         data: Vec<u8>,
     },
+    /// A raw `sensor_msgs/msg/Image`, as recorded.
     Raw(Image),
 }
 
+/// One camera frame of a session, from either image topic.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Frame {
+    /// Header stamp, ns since the epoch; labels and poses are matched to the frame by it.
     pub stamp_ns: i64,
+    /// Header frame id: the camera's optical frame, e.g. `camera_optical_frame`.
     pub frame_id: String,
+    /// The image as recorded, compressed or raw.
     pub pixels: FramePixels,
 }
 
@@ -269,7 +344,12 @@ pub enum FrameError {
     #[error(
         "image of {width} x {height} pixels refused (each side must be 1 to {MAX_IMAGE_SIDE_PX})"
     )]
-    Size { width: u32, height: u32 },
+    Size {
+        /// Width the image declares, pixels.
+        width: u32,
+        /// Height the image declares, pixels.
+        height: u32,
+    },
     /// A CompressedImage format other than PNG and JPEG.
     #[error("compressed format {0:?} is not read (objloc reads png and jpeg)")]
     Format(String),
@@ -279,17 +359,25 @@ pub enum FrameError {
     /// A raw Image row step shorter than a row.
     #[error("step {step} is less than width {width} x {channels} bytes")]
     Step {
+        /// Row length the image declares, bytes.
         step: usize,
+        /// Image width, pixels.
         width: usize,
+        /// Bytes per pixel of the encoding (1, 3 or 4).
         channels: usize,
     },
     /// A raw Image with fewer bytes than its size needs.
     #[error("raw image of {width} x {height} ({encoding}) needs {needed} bytes, has {have}")]
     Length {
+        /// Image width, pixels.
         width: usize,
+        /// Image height, pixels.
         height: usize,
+        /// The raw encoding, e.g. `rgb8`.
         encoding: String,
+        /// Bytes the declared size takes, `step * height`.
         needed: usize,
+        /// Bytes the message holds.
         have: usize,
     },
 }
@@ -394,20 +482,31 @@ fn raw_to_rgb8(img: &Image) -> Result<Rgb8, FrameError> {
 /// enum stays small as it moves through the replay.
 #[derive(Debug, Clone, PartialEq)]
 pub enum SessionMsg {
+    /// A camera frame, from the compressed or the raw image topic.
     Frame(Frame),
+    /// Camera intrinsics.
     CameraInfo(Box<CameraInfo>),
+    /// Static transforms, among them the camera mount.
     TfStatic(TfMessage),
+    /// An odometry pose and twist.
     Odom(Box<Odometry>),
+    /// A velocity command.
     CmdVel(TwistStamped),
+    /// The label of one object in one frame.
     Label(ObjectLabel),
+    /// The robot's true pose (simulation only).
     GroundTruthPose(PoseStamped),
+    /// The objects' true boxes (simulation only).
     GroundTruthObjects(GroundTruth),
 }
 
 /// One message in replay order, with where it came from.
 #[derive(Debug, Clone, PartialEq)]
 pub struct TimedMsg {
+    /// MCAP log time, ns since the Unix epoch.
     pub log_time_ns: u64,
+    /// Topic it was recorded on.
     pub topic: String,
+    /// The decoded message.
     pub msg: SessionMsg,
 }

@@ -27,29 +27,44 @@ const RECORD_LENGTH_LIMIT: usize = 256 << 20;
 /// A channel as declared in the file, with its schema.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct ChannelInfo {
+    /// MCAP channel id, unique within the file.
     pub id: u16,
+    /// Topic name, e.g. `/odom`.
     pub topic: String,
+    /// Message encoding, `cdr` for ROS 2.
     pub message_encoding: String,
+    /// Schema name as written, `pkg/msg/Type` or `pkg/Type`; empty without a schema.
     pub schema_name: String,
+    /// Schema encoding, `ros2msg` for the sessions objloc reads; empty without a schema.
     pub schema_encoding: String,
+    /// Schema text, e.g. the `ros2msg` definition; empty without a schema.
     pub schema_data: Vec<u8>,
 }
 
 /// A message still in CDR.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct RawMessage {
+    /// The [`ChannelInfo::id`] of its channel.
     pub channel_id: u16,
+    /// Sequence number from the MCAP message header, counted per channel by the writer.
     pub sequence: u32,
+    /// Time the message was recorded, ns since the Unix epoch.
     pub log_time_ns: u64,
+    /// Time the message was published, ns since the Unix epoch (the log time if unknown).
     pub publish_time_ns: u64,
+    /// The CDR payload, encapsulation header included.
     pub data: Vec<u8>,
 }
 
+/// A session file read into memory: its channels and all its messages, sorted by
+/// (log time, channel id, sequence), still in CDR until decoded.
 #[derive(Debug)]
 pub struct SessionReader {
     path: PathBuf,
     topics: Topics,
+    /// MCAP header profile, e.g. `ros2`; empty if the file declares none.
     pub profile: String,
+    /// MCAP header library: what wrote the file, e.g. `objloc 0.1.0`.
     pub library: String,
     channels: BTreeMap<u16, ChannelInfo>,
     messages: Vec<RawMessage>,
@@ -60,6 +75,7 @@ pub struct SessionReader {
     /// (topic, log time, previous log time) where a channel's log times went backwards in
     /// file order.
     pub backwards: Vec<(String, u64, u64)>,
+    /// Size of the file, bytes.
     pub file_len: u64,
 }
 
@@ -72,6 +88,7 @@ pub fn normalize_type(name: &str) -> String {
 }
 
 impl SessionReader {
+    /// Reads the session file at `path`; `topics` gives topics their roles.
     pub fn open(path: &Path, topics: Topics) -> Result<Self, SessionError> {
         let buf = std::fs::read(path).map_err(|source| SessionError::Io {
             path: path.to_owned(),
@@ -281,14 +298,17 @@ impl SessionReader {
         Ok(())
     }
 
+    /// The file read, as named to [`SessionReader::open`] or [`SessionReader::from_bytes`].
     pub fn path(&self) -> &Path {
         &self.path
     }
 
+    /// The topic names of the session roles this reader decodes by.
     pub fn topics(&self) -> &Topics {
         &self.topics
     }
 
+    /// Every channel declared in the file, by id.
     pub fn channels(&self) -> &BTreeMap<u16, ChannelInfo> {
         &self.channels
     }
@@ -322,6 +342,7 @@ impl SessionReader {
             })
     }
 
+    /// A location in this file for errors: `topic`, if given, at log time `log_time_ns`.
     pub fn at(&self, topic: Option<&str>, log_time_ns: u64) -> At {
         At {
             path: self.path.clone(),

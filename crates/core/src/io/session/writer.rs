@@ -19,6 +19,7 @@ use crate::io::output::partial_path;
 /// Chunk size: a few 256x240 PNG frames, so a crash loses at most a second or so of a sim.
 const CHUNK_SIZE_BYTES: u64 = 256 * 1024;
 
+/// Writes one session MCAP; the file gets its final name only in [`SessionWriter::finish`].
 pub struct SessionWriter {
     path: PathBuf,
     partial: PathBuf,
@@ -27,6 +28,8 @@ pub struct SessionWriter {
 }
 
 impl SessionWriter {
+    /// Starts a session file for `path`, written under its `.partial` name until
+    /// [`SessionWriter::finish`].
     pub fn create(path: &Path) -> Result<Self, SessionError> {
         let partial = partial_path(path);
         let io = |source| SessionError::Io {
