@@ -4,7 +4,7 @@
 # Usage: scripts/screenshot.sh [FILE.rrd] [OUT.png]   (defaults: out/demo/report.rrd from `objloc demo`, docs/img/demo.png)
 # Installs what it needs: Debian `chromium` (apt-get) when /usr/bin/chromium is missing,
 # `playwright-core` (npm) into target/screenshot/, and uses the pinned rerun-sdk of the test
-# venv (target/pyenv, created by `cargo test --release --test viz` or tests/interop.rs).
+# venv (target/pyenv, created by `cargo test --release --test it viz` or tests/it/interop.rs).
 # Serves FILE.rrd with `rerun --web-viewer` (the viewer of the same version as the crate),
 # opens it in headless Chromium with software GL (SwiftShader), waits for the viewer to
 # render, and saves the page. Not part of CI: it needs network for the first install.
@@ -15,7 +15,7 @@ OUT="${2:-docs/img/demo.png}"
 WAIT_MS="${WAIT_MS:-45000}"  # the software rasterizer needs ~40 s to load and lay out
 PYENV="${OBJLOC_PYENV:-target/pyenv}"
 [ -f "$RRD" ] || { echo "error: $RRD not found (run objloc demo first)" >&2; exit 1; }
-[ -x "$PYENV/bin/rerun" ] || { echo "error: $PYENV/bin/rerun missing (run cargo test --release --test viz once)" >&2; exit 1; }
+[ -x "$PYENV/bin/rerun" ] || { echo "error: $PYENV/bin/rerun missing (run cargo test --release --test it viz once)" >&2; exit 1; }
 if [ ! -x /usr/bin/chromium ]; then
   apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null
 fi

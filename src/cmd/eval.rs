@@ -1,5 +1,6 @@
 //! `objloc eval SESSION --report REPORT.json [--report ...]`: score fuse reports against the
-//! session's /ground_truth/objects, side by side.
+//! session's /ground_truth/objects, side by side; a session without ground truth is scored
+//! against its label rectangles ([`objloc_core::out::rects`]).
 
 use std::path::PathBuf;
 
@@ -21,6 +22,10 @@ pub struct Args {
     /// Print the evaluations as JSON.
     #[arg(long)]
     pub json: bool,
+    /// Without ground truth: score against this object's rectangles (default: the report's
+    /// model's object, else every object on /labels).
+    #[arg(long)]
+    pub object: Option<String>,
     #[command(flatten)]
     pub topics: TopicArgs,
 }
@@ -42,16 +47,26 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         }
     }
     let track = objloc_core::types::track::PoseTrack::new(poses);
-    let gt = gt.with_context(|| {
-        format!(
-            "{}: no {} message: this session has no ground truth to score against",
-            args.session.display(),
-            reader.topics().ground_truth_objects
-        )
-    })?;
+    let Some(gt) = gt else {
+        return super::eval_rects::run(&reader, &args);
+    };
     let truth = true_objects(&gt);
     let mut evals = Vec::new();
     for path in &args.reports {
+        let report = read_report(path)?;
+        evals.push(evaluate(
+            &path.display().to_string(),
+            &report,
+            &truth,
+            &track,
+        ));
+    }
+    print_evals(&args, &evals)
+}
+
+/// A fuse report of this objloc's version.
+pub fn read_report(path: &std::path::Path) -> anyhow::Result<Report> {
+    {
         let text =
             std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
         let value: serde_json::Value =
@@ -66,19 +81,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 version.map_or_else(|| "missing".to_string(), |v| v.to_string())
             );
         }
-        let report: Report = serde_json::from_value(value)
-            .with_context(|| format!("{}: not an objloc fuse report", path.display()))?;
-        evals.push(evaluate(
-            &path.display().to_string(),
-            &report,
-            &truth,
-            &track,
-        ));
+        serde_json::from_value(value)
+            .with_context(|| format!("{}: not an objloc fuse report", path.display()))
     }
+}
+
+fn print_evals(args: &Args, evals: &[Evaluation]) -> anyhow::Result<()> {
     if args.json {
         println!("{}", serde_json::to_string_pretty(&evals)?);
     } else {
-        for e in &evals {
+        for e in evals {
             print_eval(e);
         }
         if evals.len() > 1 {
@@ -89,7 +101,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             );
             let metres =
                 |x: Option<f64>| x.map(|x| format!("{x:.3} m")).unwrap_or_else(|| "-".into());
-            for e in &evals {
+            for e in evals {
                 println!(
                     "  {:<40} {:>11} {:>8} {:>7} {:>9} {:>9} {:>9} {:>9}",
                     e.report,

@@ -3,6 +3,7 @@
 
 mod demo;
 mod eval;
+mod eval_rects;
 mod fuse;
 mod inspect;
 mod predict;

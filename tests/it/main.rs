@@ -19,6 +19,7 @@ mod common;
 
 mod fuse;
 mod interop;
+mod realdata;
 mod record;
 mod refine;
 mod reliability;

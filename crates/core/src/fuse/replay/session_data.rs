@@ -171,11 +171,7 @@ impl Collected {
 
     /// Takes one CameraInfo: the first sets the camera; later ones must agree with it to
     /// [`CAMERA_TOLERANCE_PX`] (calibrations decomposed per view differ by rounding).
-    fn take_camera(
-        &mut self,
-        ci: &crate::io::msgs::CameraInfo,
-        at: At,
-    ) -> Result<(), ReplayError> {
+    fn take_camera(&mut self, ci: &crate::io::msgs::CameraInfo, at: At) -> Result<(), ReplayError> {
         let invalid = |what: String| ReplayError::Invalid {
             at: at.clone(),
             what,
@@ -278,14 +274,15 @@ pub fn load_session(reader: &SessionReader) -> Result<SessionData, ReplayError> 
         let at = reader.at(Some(&m.topic), m.log_time_ns);
         c.take(m, raw_index, at)?;
     }
-    let (camera, distortion, camera_frame_id) = c.camera.clone().ok_or_else(|| ReplayError::Invalid {
-        at: At {
-            path: reader.path().to_owned(),
-            topic: Some(reader.topics().camera_info.clone()),
-            log_time_ns: None,
-        },
-        what: "no CameraInfo".into(),
-    })?;
+    let (camera, distortion, camera_frame_id) =
+        c.camera.clone().ok_or_else(|| ReplayError::Invalid {
+            at: At {
+                path: reader.path().to_owned(),
+                topic: Some(reader.topics().camera_info.clone()),
+                log_time_ns: None,
+            },
+            what: "no CameraInfo".into(),
+        })?;
     let base_from_camera = c.mount(reader, &camera_frame_id)?;
     if c.odom.windows(2).any(|w| w[1].0 < w[0].0) {
         c.warnings.push(format!(

@@ -346,10 +346,24 @@ fn read_labels(
         return Err(ImportError::Line {
             path: labels.0.clone(),
             line: rows.first().map_or(0, |r| r.line),
-            what: format!("image {name:?} is not among the imported images"),
+            what: format!(
+                "image {name:?} is not in {}",
+                images_place(&opts.poses).display()
+            ),
         });
     }
     Ok(Some(labels))
+}
+
+/// Where the imported images are: their folder, or the pose file that names them.
+fn images_place(poses: &PoseFile) -> &Path {
+    match poses {
+        PoseFile::Tum { images, .. }
+        | PoseFile::Colmap { images, .. }
+        | PoseFile::Llff { images, .. }
+        | PoseFile::Idr { images, .. } => images,
+        PoseFile::Nerf { transforms } => transforms,
+    }
 }
 
 /// File name of `p` as text (lossy), or empty.

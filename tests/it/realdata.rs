@@ -1,0 +1,136 @@
+//! The real captures of `../shared/realdata` (skipped where absent) imported with the
+//! committed labels as a user would (recordings/realdata/README.md), then trained, fused with
+//! defaults and scored against the rectangles: the session without /cmd_vel gets its
+//! defaults fitted (no motion model, no refinement, a grid around where the cameras look)
+//! and says so, the distortion of the phone capture is written, and the located centre is
+//! where the rectangles say (the measured values of docs/realdata.md, with their margins).
+
+use std::path::PathBuf;
+
+use crate::common::{json, objloc, ok, p, repo_dir};
+
+fn realdata() -> Option<PathBuf> {
+    let d = repo_dir().join("../shared/realdata");
+    if d.is_dir() {
+        Some(d)
+    } else {
+        eprintln!("skipped: no ../shared/realdata on this machine");
+        None
+    }
+}
+
+#[test]
+fn the_phone_capture_imports_with_its_distortion_and_two_objects_per_frame() {
+    let Some(r) = realdata() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("fruit.mcap");
+    let labels = repo_dir().join("recordings/realdata/fruit/labels.csv");
+    let nerf = r.join("fruit/transforms.json");
+    let args = [
+        "record",
+        "import",
+        "--nerf",
+        p(&nerf),
+        "--labels",
+        p(&labels),
+        "-o",
+        p(&out),
+    ];
+    let run = objloc(&args, &[]);
+    let stderr = String::from_utf8_lossy(&run.stderr).to_string();
+    ok(&run);
+    assert!(
+        stderr.contains("(81 frames, 81 labelled; matched in order)"),
+        "{stderr}"
+    );
+    assert!(
+        stderr.contains("81 frames carry lens distortion"),
+        "{stderr}"
+    );
+    let inspect = ok(&objloc(&["inspect", p(&out)], &[]));
+    assert!(inspect.contains("/labels"), "{inspect}");
+}
+
+#[test]
+fn the_milk_carton_is_located_inside_its_rectangles_with_fitted_defaults() {
+    let Some(r) = realdata() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let llff = r.join("milk/poses_bounds.npy");
+    let images = r.join("milk/images");
+    let import = |labels: &str, flag: &str, out: &str| {
+        let o = d.join(out);
+        ok(&objloc(
+            &[
+                "record",
+                "import",
+                "--llff",
+                p(&llff),
+                "--images",
+                p(&images),
+                "--object",
+                "milk",
+                flag,
+                labels,
+                "-o",
+                p(&o),
+            ],
+            &[],
+        ));
+        o
+    };
+    let lab = repo_dir().join("recordings/realdata/milk/train-labels.csv");
+    let train = import(p(&lab), "--labels", "train.mcap");
+    // The tour's rectangles come from the masks, as `--masks` turns them into rectangles.
+    let tour = import(p(&r.join("milk/images_mask")), "--masks", "tour.mcap");
+    let model = d.join("milk.json");
+    ok(&objloc(
+        &["train", p(&train), "-o", p(&model), "--no-rerun"],
+        &[],
+    ));
+    let report = d.join("r.json");
+    let args = [
+        "fuse",
+        p(&tour),
+        "--model",
+        p(&model),
+        "--report",
+        p(&report),
+        "--no-rerun",
+    ];
+    let out = ok(&objloc(&args, &[]));
+    assert!(
+        out.contains("fitted to the session: no pose refinement"),
+        "{out}"
+    );
+    let rep = json(&report);
+    assert_eq!(rep["options"]["refine_poses"], false);
+    assert_eq!(
+        rep["fitted"].as_array().unwrap().len(),
+        3,
+        "{}",
+        rep["fitted"]
+    );
+    let dims: Vec<u64> = rep["grid"]["dims"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_u64().unwrap())
+        .collect();
+    assert_eq!(dims.iter().max(), Some(&200), "{dims:?}");
+    assert!(dims.iter().all(|n| *n >= 100), "{dims:?}");
+    assert_eq!(rep["objects"].as_array().unwrap().len(), 1);
+    let ev = ok(&objloc(&["eval", p(&tour), "--report", p(&report)], &[]));
+    assert!(
+        ev.contains("inside the rectangle in 43 of 43 frames"),
+        "{ev}"
+    );
+    let frac: f64 = ev
+        .split(" % of the size")
+        .next()
+        .and_then(|s| s.rsplit(' ').next())
+        .and_then(|s| s.parse().ok())
+        .unwrap_or_else(|| panic!("no error fraction in {ev}"));
+    // Measured 14.7 % (docs/realdata.md; the target of 8 % is not met yet).
+    assert!(frac < 20.0, "{ev}");
+}
