@@ -12,6 +12,7 @@ size, inside the rectangle in >= 95 % of the frames, tile AUC >= 0.93.
 Usage: scripts/measure_realdata.py [--markdown OUT.md] [-- extra fuse flags...]
        (from the repository root; stdlib only; calls target/release/objloc)
 Skips with a message when ../shared/realdata is absent (REALDATA_DIR overrides it).
+TRAIN_FLAGS in the environment are passed to `objloc train`.
 """
 import argparse
 import json
@@ -59,7 +60,8 @@ def measure(capture, obj, fuse_flags):
         session(capture, os.path.join(LABELS, capture, "labels.csv"), tour)
     model = os.path.join(d, f"{obj}.json")
     report = os.path.join(d, f"{obj}.report.json")
-    run([BIN, "train", train, "--object", obj, "-o", model, "--no-rerun"])
+    run([BIN, "train", train, "--object", obj, "-o", model, "--no-rerun",
+         *os.environ.get("TRAIN_FLAGS", "").split()])
     run([BIN, "fuse", tour, "--model", model, "--report", report, "--no-rerun", *fuse_flags])
     pred = run([BIN, "predict", tour, "--model", model, "--object", obj,
                 "--out", os.path.join(d, f"{obj}-predict"), "--no-rerun"])

@@ -62,7 +62,7 @@ pub fn run(reader: &SessionReader, args: &Args) -> anyhow::Result<()> {
             let views: Vec<RectView> = frames
                 .iter()
                 .filter_map(|(stamp_ns, regions)| {
-                    let pose = data.odom_at(*stamp_ns)? * data.base_from_camera;
+                    let pose = data.odom_at(*stamp_ns)? * data.mount_at(*stamp_ns).ok()?;
                     // Several rectangles of one object in a frame: the first one, the object.
                     regions.first().map(|roi| RectView {
                         stamp_ns: *stamp_ns,

@@ -216,8 +216,16 @@ impl FuseViz {
         let rec = &self.rec;
         rec.log_static("world", &rerun::ViewCoordinates::RIGHT_HAND_Z_UP())
             .map_err(log_err)?;
-        rec.log_static("world/robot/camera", &transform(&data.base_from_camera))
-            .map_err(log_err)?;
+        // A mount that moves (a pan-tilt head, /tf) is logged with each frame instead.
+        if !data.tf.is_dynamic()
+            && let Some(mount) = data
+                .frames
+                .first()
+                .and_then(|f| data.mount_at(f.stamp_ns).ok())
+        {
+            rec.log_static("world/robot/camera", &transform(&mount))
+                .map_err(log_err)?;
+        }
         // The trajectories live beside the robot they trace (`world/robot/...`) but are in
         // world coordinates: each declares the `world` entity's frame as its own, so the
         // robot's moving transform does not carry them along.
@@ -279,6 +287,11 @@ impl FuseViz {
         let rec = &self.rec;
         rec.log("world/robot", &transform(&step.odom_from_base))
             .map_err(log_err)?;
+        if data.tf.is_dynamic() {
+            let mount = step.odom_from_base.inverse() * step.odom_from_camera;
+            rec.log("world/robot/camera", &transform(&mount))
+                .map_err(log_err)?;
+        }
         let stamp = step.frame.stamp_ns;
         rec.log(
             ODOMETRY_TRACK,

@@ -276,7 +276,7 @@ fn scan(reader: &SessionReader) -> Result<Scan, SessionError> {
                 }
             }
             SessionMsg::GroundTruthPose(_) => s.gt_present = true,
-            SessionMsg::TfStatic(_) | SessionMsg::CmdVel(_) => {}
+            SessionMsg::TfStatic(_) | SessionMsg::Tf(_) | SessionMsg::CmdVel(_) => {}
         }
     }
     s.odom_stamps.sort_unstable();
@@ -351,12 +351,13 @@ fn orphan_label_warning(scan: &Scan) -> Option<String> {
     ))
 }
 
-/// Session topics (by role) with no message; the two image roles count as one.
+/// Session topics (by role) with no message; the two image roles count as one, and /tf is
+/// not missed (only a moving camera mount needs it, and /tf_static names the mount).
 fn missing_topics(reader: &SessionReader, has_frames: bool) -> Vec<String> {
     let topics = reader.topics();
     Role::ALL
         .into_iter()
-        .filter(|r| *r != Role::Image && *r != Role::CompressedImage)
+        .filter(|r| !matches!(r, Role::Image | Role::CompressedImage | Role::Tf))
         .filter(|r| reader.count(topics.get(*r)) == 0)
         .map(|r| topics.get(r).to_owned())
         .chain((!has_frames).then(|| format!("{} (or {})", topics.compressed_image, topics.image)))

@@ -689,6 +689,27 @@ pub fn schema_text(full_type: &str) -> Option<String> {
     Some(out)
 }
 
+impl crate::types::geometry::Camera {
+    /// From CameraInfo K; `None` unless width, height and focal lengths are positive and finite.
+    pub fn from_info(info: &CameraInfo) -> Option<Self> {
+        Self::from_k(info.width, info.height, info.k)
+    }
+}
+
+/// Pose from a ROS `Pose`; `None` if a value is not finite or the quaternion is degenerate.
+pub fn iso_from_pose(p: &Pose) -> Option<crate::types::geometry::Iso3> {
+    crate::types::geometry::iso_from_parts(p.position, p.orientation_xyzw)
+}
+
+/// The ROS `Pose` of a transform.
+pub fn pose_from_iso(iso: &crate::types::geometry::Iso3) -> Pose {
+    let q = iso.rotation.quaternion();
+    Pose {
+        position: [iso.translation.x, iso.translation.y, iso.translation.z],
+        orientation_xyzw: [q.i, q.j, q.k, q.w],
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -772,26 +793,5 @@ mod tests {
     fn negative_stamps_split_euclidean() {
         assert_eq!(ns_to_time(-1), (-1, 999_999_999));
         assert_eq!(time_to_ns(-1, 999_999_999), -1);
-    }
-}
-
-impl crate::types::geometry::Camera {
-    /// From CameraInfo K; `None` unless width, height and focal lengths are positive and finite.
-    pub fn from_info(info: &CameraInfo) -> Option<Self> {
-        Self::from_k(info.width, info.height, info.k)
-    }
-}
-
-/// Pose from a ROS `Pose`; `None` if a value is not finite or the quaternion is degenerate.
-pub fn iso_from_pose(p: &Pose) -> Option<crate::types::geometry::Iso3> {
-    crate::types::geometry::iso_from_parts(p.position, p.orientation_xyzw)
-}
-
-/// The ROS `Pose` of a transform.
-pub fn pose_from_iso(iso: &crate::types::geometry::Iso3) -> Pose {
-    let q = iso.rotation.quaternion();
-    Pose {
-        position: [iso.translation.x, iso.translation.y, iso.translation.z],
-        orientation_xyzw: [q.i, q.j, q.k, q.w],
     }
 }

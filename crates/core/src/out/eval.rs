@@ -568,6 +568,7 @@ mod tests {
             frames: 3,
             frames_in_session: 3,
             options: FuseOptions::default(),
+            fitted: Vec::new(),
             grid: GridReport {
                 dims: [1, 1, 1],
                 voxel_size_m: 0.04,

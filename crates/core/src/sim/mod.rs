@@ -7,6 +7,7 @@
 //! separate streams), rendering is thread-count independent, so the same inputs give a
 //! byte-identical file. `odom` is the room frame: the robot starts with odometry = truth.
 
+pub mod head;
 pub mod render;
 pub mod robot;
 pub mod scene;
@@ -20,12 +21,13 @@ use thiserror::Error;
 use crate::io::msgs::pose_from_iso;
 use crate::io::msgs::{
     CameraInfo, CompressedImage, GroundTruth, Header, ObjectLabel, Odometry, Pose, PoseStamped,
-    RegionOfInterest, TfMessage, TransformStamped, Twist, TwistStamped,
+    RegionOfInterest, Twist, TwistStamped,
 };
 use crate::io::session::{SessionError, SessionWriter, Topics};
 use crate::types::geometry::wrap_angle;
 use crate::types::geometry::{Camera, Iso3, camera_mount, iso_from_xy_yaw};
 use crate::types::image::encode_png;
+use crate::types::lens::Distortion;
 pub use render::{FrameJitter, Rendered, Renderer};
 pub use robot::{Event, Pose2, Rng, SpeedNoise, Stop};
 pub use scene::{BUILTIN_SCENES, Scene, Shape};
@@ -460,13 +462,12 @@ impl Recording<'_> {
         progress: &mut dyn FnMut(usize, usize),
         total_frames: usize,
     ) -> Result<RecordStats, SimError> {
-        let mount = base_from_optical(self.scene);
         let mut sink = Sink {
             topics: Topics::default(),
             writer: SessionWriter::create(out)?,
             messages: 0,
         };
-        sink.write_statics(self.scene, &mount)?;
+        sink.write_statics(self.scene)?;
         let mut camera_rng = Rng::new(self.opts.seed ^ CAMERA_STREAM);
         let mut frames = 0usize;
         for ev in events {
@@ -482,7 +483,10 @@ impl Recording<'_> {
                     truth,
                     linear_m_s,
                     angular_rad_s,
-                } => sink.write_poses(*stamp_ns, nominal, truth, *linear_m_s, *angular_rad_s)?,
+                } => {
+                    sink.write_poses(*stamp_ns, nominal, truth, *linear_m_s, *angular_rad_s)?;
+                    sink.write_head(self.scene, *stamp_ns)?;
+                }
                 Event::Frame {
                     stamp_ns,
                     index,
@@ -491,12 +495,14 @@ impl Recording<'_> {
                     truth,
                 } => {
                     sink.write_poses(*stamp_ns, nominal, truth, 0.0, 0.0)?;
+                    sink.write_head(self.scene, *stamp_ns)?;
                     let jitter = frame_jitter(&mut camera_rng);
                     let shot = Shot {
                         index: *index,
                         stamp_ns: *stamp_ns,
                         background: *background,
-                        odom_from_optical: iso_from_pose2(truth) * mount,
+                        odom_from_optical: iso_from_pose2(truth)
+                            * head::mount_at(self.scene, *stamp_ns),
                     };
                     self.write_frame(&mut sink, &shot, &jitter)?;
                     frames += 1;
@@ -537,7 +543,13 @@ impl Recording<'_> {
         if let Some(dir) = &self.opts.dump_frames {
             dump_frame(dir, shot.index, &rendered, &png, &labels)?;
         }
-        sink.write_frame(&header, png, self.full.camera(), &labels)
+        sink.write_frame(
+            &header,
+            png,
+            self.full.camera(),
+            self.full.distortion(),
+            &labels,
+        )
     }
 
     /// The labels of a rendered frame: the target's on a train session, every object's on
@@ -569,21 +581,10 @@ impl Recording<'_> {
 }
 
 impl Sink {
-    /// Writes what holds for the whole session: the camera mount on /tf_static and the
-    /// ground-truth boxes.
-    fn write_statics(&mut self, scene: &Scene, mount: &Iso3) -> Result<(), SimError> {
-        let tf = TfMessage {
-            transforms: vec![TransformStamped {
-                header: Header::new(START_NS, BASE_FRAME),
-                child_frame_id: CAMERA_FRAME.into(),
-                translation: [
-                    mount.translation.x,
-                    mount.translation.y,
-                    mount.translation.z,
-                ],
-                rotation_xyzw: pose_from_iso(mount).orientation_xyzw,
-            }],
-        };
+    /// Writes what holds for the whole session: the camera mount (or, with a pan-tilt
+    /// head, its fixed link) on /tf_static and the ground-truth boxes.
+    fn write_statics(&mut self, scene: &Scene) -> Result<(), SimError> {
+        let tf = head::static_transforms(scene);
         self.writer.write(&self.topics.tf_static, START_NS, &tf)?;
         let boxes = ground_truth_boxes(scene);
         let gt = GroundTruth {
@@ -648,12 +649,22 @@ impl Sink {
         Ok(())
     }
 
+    /// Writes the pan-tilt head's joint on /tf at `stamp_ns`, when the camera has a head.
+    fn write_head(&mut self, scene: &Scene, stamp_ns: i64) -> Result<(), SimError> {
+        if let Some(tf) = head::dynamic_transforms(scene, stamp_ns) {
+            self.writer.write(&self.topics.tf, stamp_ns, &tf)?;
+            self.messages += 1;
+        }
+        Ok(())
+    }
+
     /// Writes a frame's image, its camera info and its labels.
     fn write_frame(
         &mut self,
         header: &Header,
         png: Vec<u8>,
         camera: &Camera,
+        distortion: Option<&Distortion>,
         labels: &[ObjectLabel],
     ) -> Result<(), SimError> {
         let stamp_ns = header.stamp_ns;
@@ -666,7 +677,7 @@ impl Sink {
                 data: png,
             },
         )?;
-        let info = CameraInfo::pinhole(
+        let mut info = CameraInfo::pinhole(
             header.clone(),
             camera.width,
             camera.height,
@@ -675,6 +686,9 @@ impl Sink {
             camera.cx,
             camera.cy,
         );
+        if let Some(d) = distortion {
+            info.d = d.to_plumb_bob();
+        }
         self.writer
             .write(&self.topics.camera_info, stamp_ns, &info)?;
         for l in labels {

@@ -12,6 +12,7 @@ use rayon::prelude::*;
 
 use super::scene::{Material, Primitive, Scene, Shape, Texture};
 use crate::types::geometry::{Camera, Iso3};
+use crate::types::lens::{Distortion, undistorted_pixel};
 
 /// Rays start this far off a surface so they do not hit it again.
 const SURFACE_EPS_M: f64 = 1e-6;
@@ -117,6 +118,8 @@ struct Hit {
 #[derive(Debug, Clone)]
 pub struct Renderer {
     camera: Camera,
+    /// The lens: each pixel of the distorted image traces the ray of its undistorted point.
+    distortion: Option<Distortion>,
     groups: Vec<Group>,
     room_half: Vector3<f64>,
     room_height: f64,
@@ -186,10 +189,17 @@ impl Renderer {
             light_intensity: scene.light.intensity,
             ambient: scene.light.ambient,
             instances,
+            distortion: c.distortion.filter(|d| !d.is_zero()),
         }
     }
 
-    /// The pinhole camera of the scene's camera spec (fx = fy, principal point at the centre).
+    /// The lens distortion of the renders, if the scene's camera has one.
+    pub fn distortion(&self) -> Option<&Distortion> {
+        self.distortion.as_ref()
+    }
+
+    /// The pinhole camera of the scene's camera spec (fx = fy, principal point at the centre),
+    /// before any lens distortion.
     pub fn camera(&self) -> &Camera {
         &self.camera
     }
@@ -212,7 +222,12 @@ impl Renderer {
             .enumerate()
             .for_each(|(y, (row_rgb, row_ids))| {
                 for x in 0..w {
-                    let dir = rot * self.camera.ray(x as f64 + 0.5, y as f64 + 0.5);
+                    let (u, v) = (x as f64 + 0.5, y as f64 + 0.5);
+                    let (u, v) = match &self.distortion {
+                        Some(d) => undistorted_pixel(&self.camera, d, u, v),
+                        None => (u, v),
+                    };
+                    let dir = rot * self.camera.ray(u, v);
                     let (radiance, id) = self.shade(&origin, &dir);
                     row_ids[x] = id;
                     let pixel = (y * w + x) as u64;

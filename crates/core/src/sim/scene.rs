@@ -84,6 +84,26 @@ pub struct CameraSpec {
     pub mount_m: [f64; 3],
     /// Downward pitch of the optical axis from base_link +x, degrees (it looks along +x at 0).
     pub pitch_down_deg: f64,
+    /// A pan-tilt head that sweeps the camera while the robot moves (published on /tf); none:
+    /// the camera is fixed (/tf_static only).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pan_tilt: Option<PanTiltSpec>,
+    /// Lens distortion of the rendered images (OpenCV radial-tangential, written as
+    /// CameraInfo `d`); none: an ideal pinhole.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub distortion: Option<crate::types::lens::Distortion>,
+}
+
+/// A pan-tilt head: pan about base_link z and tilt about its y, sinusoidal in time.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PanTiltSpec {
+    /// Pan amplitude, degrees, in [0, 90): pan(t) = amplitude sin(2 pi t / period).
+    pub pan_amplitude_deg: f64,
+    /// Tilt amplitude, degrees, in [0, 45): tilt(t) = amplitude cos(2 pi t / period).
+    pub tilt_amplitude_deg: f64,
+    /// Period of the sweep, seconds (> 0).
+    pub period_s: f64,
 }
 
 /// The robot's nominal speeds.
@@ -354,6 +374,18 @@ impl Scene {
             return Err(format!(
                 "camera hfov_deg {} must be in (1, 170), mount and pitch finite",
                 c.hfov_deg
+            ));
+        }
+        if let Some(h) = &c.pan_tilt
+            && !((0.0..90.0).contains(&h.pan_amplitude_deg)
+                && (0.0..45.0).contains(&h.tilt_amplitude_deg)
+                && h.period_s > 0.0
+                && h.period_s.is_finite())
+        {
+            return Err(format!(
+                "camera pan_tilt: pan amplitude {} must be in [0, 90), tilt amplitude {} in \
+                 [0, 45) degrees, period {} s above 0",
+                h.pan_amplitude_deg, h.tilt_amplitude_deg, h.period_s
             ));
         }
         Ok(())

@@ -112,8 +112,7 @@ pub fn fit_to_session(options: &FuseOptions, data: &SessionData) -> Fitted {
 fn camera_poses(data: &SessionData) -> Vec<Iso3> {
     data.frames
         .iter()
-        .filter_map(|f| data.odom_at(f.stamp_ns))
-        .map(|p| p * data.base_from_camera)
+        .filter_map(|f| Some(data.odom_at(f.stamp_ns)? * data.mount_at(f.stamp_ns).ok()?))
         .collect()
 }
 

@@ -126,7 +126,7 @@ fn step(
             index,
             &p.clusters,
             &data.camera,
-            &(odom_from_base * data.base_from_camera),
+            &(odom_from_base * p.mount),
         ));
     }
     if let Some(map) = tracker.floor_map.as_mut().filter(|_| !floor_unfit) {
@@ -150,7 +150,7 @@ fn step(
         let step = FrameStep {
             index,
             frame: fr.clone(),
-            odom_from_camera: odom_from_base * data.base_from_camera,
+            odom_from_camera: odom_from_base * p.mount,
             odom_from_base,
             odometry: p.odometry,
             correction,
@@ -337,7 +337,7 @@ fn localise(
         landmarks: &landmarks(&centroids, &tracker.seen, data.camera.fx),
         clusters,
         camera: &data.camera,
-        base_from_camera: &data.base_from_camera,
+        base_from_camera: &p.mount,
         predicted: &predicted,
         cov: &cov,
         floor: tracker.floor_map.as_ref().map(|m| (m, &p.floor)),
@@ -386,7 +386,7 @@ fn fuse_one(
         let pose = drift * data.odom_at(seg.start_ns).unwrap_or(p.odometry);
         fuser.blur(seg, &pose);
     }
-    let odom_from_camera = odom_from_base * data.base_from_camera;
+    let odom_from_camera = odom_from_base * p.mount;
     fuser.last_cells_updated =
         fuser.integrate(&odom_from_camera, &odom_from_base, &data.camera, &p.probs);
     segments

@@ -15,6 +15,8 @@ use super::*;
 pub(super) struct Prepared {
     pub(super) frame: FrameRef,
     pub(super) odometry: Iso3,
+    /// The camera mount at the frame's stamp (base_from_camera).
+    pub(super) mount: Iso3,
     pub(super) probs: TileProbs,
     /// The frame's floor, when refining with the floor.
     pub(super) floor: FloorPatch,
@@ -139,6 +141,14 @@ pub(super) fn classify_frames(
             ));
             continue;
         };
+        let mount = match ctx.data.mount_at(fr.stamp_ns) {
+            Ok(m) => m,
+            Err(why) => {
+                ctx.warnings
+                    .push(format!("{}: no camera mount: {why}; frame skipped", at()));
+                continue;
+            }
+        };
         if ctx
             .prepared
             .last()
@@ -166,13 +176,7 @@ pub(super) fn classify_frames(
                         && c < probs.cols
                         && logit(f64::from(probs.p[r * probs.cols + c])) >= min_logit
                 };
-                floor_patch(
-                    &image,
-                    &ctx.data.camera,
-                    &ctx.data.base_from_camera,
-                    fp,
-                    not_floor,
-                )
+                floor_patch(&image, &ctx.data.camera, &mount, fp, not_floor)
             }
             None => FloorPatch::default(),
         };
@@ -190,6 +194,7 @@ pub(super) fn classify_frames(
         ctx.prepared.push(Prepared {
             frame: fr.clone(),
             odometry,
+            mount,
             probs,
             floor,
             clusters,

@@ -5,6 +5,8 @@ use crate::io::msgs::iso_from_pose;
 use crate::io::session::{At, Role, SessionMsg, SessionReader, TimedMsg};
 use crate::types::geometry::{Camera, Iso3, iso_from_parts};
 use crate::types::lens::{Distortion, Rectifier};
+
+use super::tf::TfTree;
 use crate::types::track::PoseTrack;
 
 use super::*;
@@ -41,8 +43,14 @@ pub struct SessionData {
     pub rectifier: Option<Rectifier>,
     /// CameraInfo's frame id; the mount is the transform to this frame.
     pub camera_frame_id: String,
-    /// base_link -> camera optical frame, from /tf_static.
-    pub base_from_camera: Iso3,
+    /// The transforms of /tf_static and /tf: the camera mount at a stamp is
+    /// [`SessionData::mount_at`].
+    pub tf: TfTree,
+    /// The odometry's child frame (the robot's base), from the first /odom message.
+    pub base_frame_id: Option<String>,
+    /// The mount when /tf_static holds a single transform that does not name the camera's
+    /// frame (older bags): taken to be the mount.
+    pub lone_mount: Option<Iso3>,
     /// (stamp, odom_from_base), sorted by stamp.
     pub odom: PoseTrack,
     /// (stamp, v m/s, w rad/s), sorted by stamp.
@@ -58,6 +66,30 @@ pub struct SessionData {
 }
 
 impl SessionData {
+    /// The camera mount (base_from_camera) at `stamp_ns`: the chain from the odometry's
+    /// child frame to the camera's frame (see [`TfTree`]), or why there is none.
+    pub fn mount_at(&self, stamp_ns: i64) -> Result<Iso3, String> {
+        let cam = &self.camera_frame_id;
+        // Older bags name another parent than the odometry's child: a lone transform to the
+        // camera still is its mount. A longer chain that misses the base is not (a head's
+        // joint missing from /tf must not pass for a fixed mount).
+        let lone_edge = self
+            .tf
+            .parent(cam)
+            .is_some_and(|p| self.tf.parent(p).is_none());
+        let chained = match &self.base_frame_id {
+            Some(b) => self.tf.lookup(Some(b), cam, stamp_ns).or_else(|e| {
+                if lone_edge {
+                    self.tf.lookup(None, cam, stamp_ns)
+                } else {
+                    Err(e)
+                }
+            }),
+            None => self.tf.lookup(None, cam, stamp_ns),
+        };
+        chained.or_else(|e| self.lone_mount.ok_or(e))
+    }
+
     /// Pose of base_link in odom at `stamp_ns`, interpolated; `None` when the odometry does
     /// not reach within [`crate::types::track::POSE_TOLERANCE_NS`] of it.
     pub fn odom_at(&self, stamp_ns: i64) -> Option<Iso3> {
@@ -78,7 +110,10 @@ impl SessionData {
         let mut hi = [f64::NEG_INFINITY; 3];
         for f in &self.frames {
             if let Some(p) = self.odom_at(f.stamp_ns) {
-                let c = (p * self.base_from_camera).translation.vector;
+                let Ok(mount) = self.mount_at(f.stamp_ns) else {
+                    continue;
+                };
+                let c = (p * mount).translation.vector;
                 for a in 0..3 {
                     lo[a] = lo[a].min(c[a]);
                     hi[a] = hi[a].max(c[a]);
@@ -110,6 +145,10 @@ struct Collected {
     camera: Option<(Camera, Distortion, String)>,
     /// (parent, child, parent_from_child) from /tf_static.
     transforms: Vec<(String, String, Iso3)>,
+    /// (parent, child, stamp, parent_from_child) from /tf.
+    dynamic: Vec<(String, String, i64, Iso3)>,
+    /// The first /odom message's child frame.
+    base_frame_id: Option<String>,
     odom: Vec<(i64, Iso3)>,
     commands: Vec<(i64, f64, f64)>,
     frames: Vec<FrameRef>,
@@ -124,20 +163,24 @@ impl Collected {
             SessionMsg::CameraInfo(ci) => self.take_camera(&ci, at)?,
             SessionMsg::TfStatic(tf) => {
                 for t in tf.transforms {
-                    let iso = iso_from_parts(t.translation, t.rotation_xyzw).ok_or_else(|| {
-                        ReplayError::Invalid {
-                            at: at.clone(),
-                            what: format!(
-                                "transform {} -> {} is not finite or has a zero quaternion",
-                                t.header.frame_id, t.child_frame_id
-                            ),
-                        }
-                    })?;
+                    let iso = transform_iso(&t, &at)?;
                     self.transforms
                         .push((t.header.frame_id, t.child_frame_id, iso));
                 }
             }
+            SessionMsg::Tf(tf) => {
+                for t in tf.transforms {
+                    let iso = transform_iso(&t, &at)?;
+                    let stamp = t.header.stamp_ns;
+                    self.dynamic
+                        .push((t.header.frame_id, t.child_frame_id, stamp, iso));
+                }
+            }
             SessionMsg::Odom(o) => match iso_from_pose(&o.pose) {
+                Some(p) if self.base_frame_id.is_none() => {
+                    self.base_frame_id = Some(o.child_frame_id.clone());
+                    self.odom.push((o.header.stamp_ns, p));
+                }
                 Some(p) => self.odom.push((o.header.stamp_ns, p)),
                 None => self.warnings.push(format!(
                     "{at}: pose is not finite or has a zero quaternion; message skipped"
@@ -197,29 +240,52 @@ impl Collected {
         Ok(())
     }
 
-    /// The camera mount: the transform to the camera's frame; a bag with a single static
-    /// transform is taken to mean that one.
-    fn mount(&self, reader: &SessionReader, camera_frame_id: &str) -> Result<Iso3, ReplayError> {
+    /// The transform tree, checked to give the camera mount: at every stamp when static,
+    /// at least somewhere when it moves (frames without one are skipped later).
+    fn mount(
+        &self,
+        reader: &SessionReader,
+        camera_frame_id: &str,
+        first_stamp_ns: i64,
+    ) -> Result<(TfTree, Option<Iso3>), ReplayError> {
+        let tree = TfTree::new(&self.transforms, &self.dynamic);
         let t = &self.transforms;
-        t.iter()
-            .find(|(_, child, _)| child == camera_frame_id)
-            .or_else(|| (t.len() == 1).then(|| &t[0]))
-            .map(|(_, _, iso)| *iso)
-            .ok_or_else(|| ReplayError::Invalid {
-                at: At {
-                    path: reader.path().to_owned(),
-                    topic: Some(reader.topics().tf_static.clone()),
-                    log_time_ns: None,
-                },
-                what: format!(
-                    "no transform to the camera frame {camera_frame_id:?} (have: {})",
-                    t.iter()
-                        .map(|(p, c, _)| format!("{p} -> {c}"))
-                        .collect::<Vec<_>>()
-                        .join(", ")
-                ),
-            })
+        let lone = (t.len() == 1 && self.dynamic.is_empty()).then(|| t[0].2);
+        let base = self.base_frame_id.as_deref();
+        let lone_edge = tree
+            .parent(camera_frame_id)
+            .is_some_and(|p| tree.parent(p).is_none());
+        let found = tree.lookup(base, camera_frame_id, first_stamp_ns).is_ok()
+            || (lone_edge && tree.lookup(None, camera_frame_id, first_stamp_ns).is_ok());
+        if found || lone.is_some() || tree.is_dynamic() {
+            return Ok((tree, lone));
+        }
+        Err(ReplayError::Invalid {
+            at: At {
+                path: reader.path().to_owned(),
+                topic: Some(reader.topics().tf_static.clone()),
+                log_time_ns: None,
+            },
+            what: format!(
+                "no transform to the camera frame {camera_frame_id:?} (have: {})",
+                t.iter()
+                    .map(|(p, c, _)| format!("{p} -> {c}"))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ),
+        })
     }
+}
+
+/// A transform as an isometry, or an error naming its frames.
+fn transform_iso(t: &crate::io::msgs::TransformStamped, at: &At) -> Result<Iso3, ReplayError> {
+    iso_from_parts(t.translation, t.rotation_xyzw).ok_or_else(|| ReplayError::Invalid {
+        at: at.clone(),
+        what: format!(
+            "transform {} -> {} is not finite or has a zero quaternion",
+            t.header.frame_id, t.child_frame_id
+        ),
+    })
 }
 
 /// Largest difference of fx, fy, cx or cy (pixels) between two CameraInfos taken as the same
@@ -283,7 +349,22 @@ pub fn load_session(reader: &SessionReader) -> Result<SessionData, ReplayError> 
             },
             what: "no CameraInfo".into(),
         })?;
-    let base_from_camera = c.mount(reader, &camera_frame_id)?;
+    let first_stamp_ns = c.frames.first().map_or(0, |f| f.stamp_ns);
+    let (tf, lone_mount) = c.mount(reader, &camera_frame_id, first_stamp_ns)?;
+    if let Some(base) = &c.base_frame_id
+        && tf
+            .lookup(Some(base), &camera_frame_id, first_stamp_ns)
+            .is_err()
+        && !tf.is_dynamic()
+    {
+        let parent = tf.parent(&camera_frame_id).unwrap_or("?");
+        c.warnings.push(format!(
+            "{path}: the camera mount is taken from {parent} -> {camera_frame_id} on {}, but \
+             /odom moves {base:?}, which no transform connects to it (a moving mount's /tf \
+             missing?)",
+            reader.topics().tf_static
+        ));
+    }
     if c.odom.windows(2).any(|w| w[1].0 < w[0].0) {
         c.warnings.push(format!(
             "{path}: {} stamps go backwards; poses sorted by stamp",
@@ -297,7 +378,9 @@ pub fn load_session(reader: &SessionReader) -> Result<SessionData, ReplayError> 
         distortion,
         rectifier: (!distortion.is_zero()).then(|| Rectifier::new(&camera, &distortion)),
         camera_frame_id,
-        base_from_camera,
+        tf,
+        base_frame_id: c.base_frame_id,
+        lone_mount,
         odom: PoseTrack::new(c.odom),
         commands: c.commands,
         frames: c.frames,

@@ -37,6 +37,10 @@ pub struct Topics {
     pub camera_info: String,
     /// Static transforms, `tf2_msgs/msg/TFMessage`, among them the camera mount.
     pub tf_static: String,
+    /// Transforms that change over time, `tf2_msgs/msg/TFMessage` (a pan-tilt head, an
+    /// arm); absent from files written before it existed, which had none.
+    #[serde(default = "default_tf")]
+    pub tf: String,
     /// The robot's pose and velocity from odometry, `nav_msgs/msg/Odometry`.
     pub odom: String,
     /// Velocity commands to the robot, `geometry_msgs/msg/TwistStamped`.
@@ -49,6 +53,10 @@ pub struct Topics {
     pub ground_truth_objects: String,
 }
 
+fn default_tf() -> String {
+    "/tf".into()
+}
+
 impl Default for Topics {
     fn default() -> Self {
         Self {
@@ -56,6 +64,7 @@ impl Default for Topics {
             image: "/camera/image".into(),
             camera_info: "/camera/camera_info".into(),
             tf_static: "/tf_static".into(),
+            tf: default_tf(),
             odom: "/odom".into(),
             cmd_vel: "/cmd_vel".into(),
             labels: "/labels".into(),
@@ -76,6 +85,8 @@ pub enum Role {
     CameraInfo,
     /// Static transforms, among them the camera mount.
     TfStatic,
+    /// Transforms over time (a moving camera mount).
+    Tf,
     /// Odometry: the robot's pose over time.
     Odom,
     /// Velocity commands.
@@ -90,11 +101,12 @@ pub enum Role {
 
 impl Role {
     /// Every role, in declaration (and `Ord`) order.
-    pub const ALL: [Role; 9] = [
+    pub const ALL: [Role; 10] = [
         Role::CompressedImage,
         Role::Image,
         Role::CameraInfo,
         Role::TfStatic,
+        Role::Tf,
         Role::Odom,
         Role::CmdVel,
         Role::Labels,
@@ -109,6 +121,7 @@ impl Role {
             Role::Image => "image",
             Role::CameraInfo => "camera_info",
             Role::TfStatic => "tf_static",
+            Role::Tf => "tf",
             Role::Odom => "odom",
             Role::CmdVel => "cmd_vel",
             Role::Labels => "labels",
@@ -123,7 +136,7 @@ impl Role {
             Role::CompressedImage => CompressedImage::TYPE,
             Role::Image => Image::TYPE,
             Role::CameraInfo => CameraInfo::TYPE,
-            Role::TfStatic => TfMessage::TYPE,
+            Role::TfStatic | Role::Tf => TfMessage::TYPE,
             Role::Odom => Odometry::TYPE,
             Role::CmdVel => TwistStamped::TYPE,
             Role::Labels => ObjectLabel::TYPE,
@@ -141,6 +154,7 @@ impl Topics {
             Role::Image => &self.image,
             Role::CameraInfo => &self.camera_info,
             Role::TfStatic => &self.tf_static,
+            Role::Tf => &self.tf,
             Role::Odom => &self.odom,
             Role::CmdVel => &self.cmd_vel,
             Role::Labels => &self.labels,
@@ -155,6 +169,7 @@ impl Topics {
             Role::Image => &mut self.image,
             Role::CameraInfo => &mut self.camera_info,
             Role::TfStatic => &mut self.tf_static,
+            Role::Tf => &mut self.tf,
             Role::Odom => &mut self.odom,
             Role::CmdVel => &mut self.cmd_vel,
             Role::Labels => &mut self.labels,
@@ -488,6 +503,8 @@ pub enum SessionMsg {
     CameraInfo(Box<CameraInfo>),
     /// Static transforms, among them the camera mount.
     TfStatic(TfMessage),
+    /// Transforms over time.
+    Tf(TfMessage),
     /// An odometry pose and twist.
     Odom(Box<Odometry>),
     /// A velocity command.

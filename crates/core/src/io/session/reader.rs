@@ -419,6 +419,7 @@ impl SessionReader {
                 SessionMsg::CameraInfo(Box::new(CameraInfo::from_cdr(d).map_err(err)?))
             }
             Role::TfStatic => SessionMsg::TfStatic(TfMessage::from_cdr(d).map_err(err)?),
+            Role::Tf => SessionMsg::Tf(TfMessage::from_cdr(d).map_err(err)?),
             Role::Odom => SessionMsg::Odom(Box::new(Odometry::from_cdr(d).map_err(err)?)),
             Role::CmdVel => SessionMsg::CmdVel(TwistStamped::from_cdr(d).map_err(err)?),
             Role::Labels => SessionMsg::Label(ObjectLabel::from_cdr(d).map_err(err)?),
