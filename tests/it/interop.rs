@@ -501,21 +501,26 @@ fn rerun_converts_an_objloc_session_to_rrd() {
     );
 }
 
-/// The rosbag2 bags recorded by rosbag2's own tests (shared/thirdparty/rosbag2).
-fn rosbag2_bags() -> Vec<PathBuf> {
+/// The rosbag2 bags recorded by rosbag2's own tests (shared/thirdparty/rosbag2), or None
+/// (with a message) where ../shared is absent.
+fn rosbag2_bags() -> Option<Vec<PathBuf>> {
     let dir = repo_dir().join("../shared/thirdparty/rosbag2");
+    if !dir.is_dir() {
+        eprintln!("skipped: no {} on this machine", dir.display());
+        return None;
+    }
     let mut bags: Vec<PathBuf> = std::fs::read_dir(&dir)
         .unwrap_or_else(|e| panic!("{}: {e}", dir.display()))
         .map(|e| e.unwrap().path())
         .filter(|p| p.extension() == Some(OsStr::new("mcap")))
         .collect();
     bags.sort();
-    bags
+    Some(bags)
 }
 
 #[test]
 fn inspect_summarises_real_rosbag2_bags() {
-    let bags = rosbag2_bags();
+    let Some(bags) = rosbag2_bags() else { return };
     let names: Vec<_> = bags
         .iter()
         .map(|p| p.file_name().unwrap().to_string_lossy().into_owned())

@@ -14,6 +14,7 @@
 //! Invariants: pure function of the grid; components are found in index order, so the output
 //! order is deterministic. No I/O.
 
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::fuse::grid::{Grid, sigmoid};
@@ -149,20 +150,28 @@ pub fn find_objects_with_cells(grid: &Grid, params: &ObjectParams) -> Vec<(Objec
         return Vec::new();
     }
     let (seed_e, grow_e) = (params.seed_fraction * max_e, params.grow_fraction * max_e);
-    for (idx, ((st, &v), &l)) in state
-        .iter_mut()
-        .zip(&grid.views)
-        .zip(&grid.log_odds)
+    // Marked in parallel chunks, the seeds gathered in index order: the same as one pass.
+    const CHUNK: usize = 1 << 16;
+    let chunk_seeds: Vec<Vec<usize>> = state
+        .par_chunks_mut(CHUNK)
+        .zip(grid.views.par_chunks(CHUNK))
+        .zip(grid.log_odds.par_chunks(CHUNK))
         .enumerate()
-    {
-        let e = l - prior;
-        if v >= params.min_views && e >= grow_e {
-            *st = GROW;
-            if e >= seed_e {
-                seeds.push(idx);
+        .map(|(c, ((st, vs), ls))| {
+            let mut local = Vec::new();
+            for (k, ((st, &v), &l)) in st.iter_mut().zip(vs).zip(ls).enumerate() {
+                let e = l - prior;
+                if v >= params.min_views && e >= grow_e {
+                    *st = GROW;
+                    if e >= seed_e {
+                        local.push(c * CHUNK + k);
+                    }
+                }
             }
-        }
-    }
+            local
+        })
+        .collect();
+    seeds.extend(chunk_seeds.into_iter().flatten());
     let [nx, ny, nz] = spec.dims;
     let mut objects = Vec::new();
     let mut stack = Vec::new();
@@ -271,9 +280,9 @@ fn summarize(grid: &Grid, members: &[usize]) -> Object {
     let (mut w, mut c) = (0.0, [0.0; 3]);
     let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
     let mut peak_l = f64::NEG_INFINITY;
-    // (cell index along the axis, probability) per axis, for the extent's quantiles.
-    let mut along: [Vec<(usize, f64)>; 3] =
-        std::array::from_fn(|_| Vec::with_capacity(members.len()));
+    // Probability mass per cell index along each axis, for the extent's quantiles: a
+    // histogram, not a sort (objects of 10^5 cells are summarised after every frame).
+    let mut along: [Vec<f64>; 3] = std::array::from_fn(|a| vec![0.0; spec.dims[a]]);
     for &idx in members {
         let ijk = spec.ijk(idx);
         let centre = spec.center(ijk[0], ijk[1], ijk[2]);
@@ -285,11 +294,11 @@ fn summarize(grid: &Grid, members: &[usize]) -> Object {
             c[a] += p * centre[a];
             lo[a] = lo[a].min(centre[a] - v / 2.0);
             hi[a] = hi[a].max(centre[a] + v / 2.0);
-            along[a].push((ijk[a], p));
+            along[a][ijk[a]] += p;
         }
     }
     let centroid_m = std::array::from_fn(|a| {
-        let (q_lo, q_hi) = weighted_quantiles(&mut along[a], w, EXTENT_TRIM);
+        let (q_lo, q_hi) = weighted_quantiles(&along[a], w, EXTENT_TRIM);
         spec.origin_m[a] + v * (0.5 * (q_lo + q_hi) as f64 + 0.5)
     });
     Object {
@@ -304,17 +313,17 @@ fn summarize(grid: &Grid, members: &[usize]) -> Object {
     }
 }
 
-/// The cell indices at which the cumulative probability mass along one axis first reaches
-/// `trim` and `1 - trim` of `total`. Sorting by (index, probability) makes it a function of
-/// the multiset alone, so member order cannot change it.
-fn weighted_quantiles(cells: &mut [(usize, f64)], total: f64, trim: f64) -> (usize, usize) {
-    cells.sort_unstable_by(|a, b| a.0.cmp(&b.0).then(a.1.total_cmp(&b.1)));
-    let first = cells.first().map_or(0, |c| c.0);
-    let last = cells.last().map_or(0, |c| c.0);
+/// The cell indices at which the cumulative probability mass along one axis (`mass[i]`: the
+/// mass of the cells with index i, summed in member order, so a function of the members)
+/// first reaches `trim` and `1 - trim` of `total`; the extreme occupied indices when rounding
+/// keeps the sum below.
+fn weighted_quantiles(mass: &[f64], total: f64, trim: f64) -> (usize, usize) {
+    let first = mass.iter().position(|m| *m > 0.0).unwrap_or(0);
+    let last = mass.iter().rposition(|m| *m > 0.0).unwrap_or(0);
     let (lo_mass, hi_mass) = (trim * total, (1.0 - trim) * total);
     let (mut q_lo, mut q_hi) = (None, None);
     let mut cum = 0.0;
-    for &(i, p) in cells.iter() {
+    for (i, &p) in mass.iter().enumerate().skip(first) {
         cum += p;
         if q_lo.is_none() && cum >= lo_mass {
             q_lo = Some(i);
@@ -371,21 +380,24 @@ mod tests {
     #[test]
     fn extent_quantiles_skip_a_stray_end_cell() {
         // Ten layers of ten cells at p = 1, then one stray cell at p = 0.5 far out.
-        let mut cells: Vec<(usize, f64)> = (10..20)
-            .flat_map(|i| std::iter::repeat_n((i, 1.0), 10))
-            .collect();
-        cells.push((40, 0.5));
-        cells.reverse();
+        let mut mass = vec![0.0; 50];
+        for m in &mut mass[10..20] {
+            *m = 10.0;
+        }
+        mass[40] = 0.5;
         let total = 100.5;
         // 1 % of the mass is 1.005, 99 % is 99.495: reached at layers 10 and 19.
-        assert_eq!(weighted_quantiles(&mut cells, total, 0.01), (10, 19));
+        assert_eq!(weighted_quantiles(&mass, total, 0.01), (10, 19));
         // Untrimmed, the stray cell is the extent's end.
-        assert_eq!(weighted_quantiles(&mut cells, total, 0.0), (10, 40));
+        assert_eq!(weighted_quantiles(&mass, total, 0.0), (10, 40));
         // Mass concentrated at one end moves the quantiles: 30 % of the mass at layer 19.
-        let mut skew: Vec<(usize, f64)> = (10..20).map(|i| (i, 1.0)).collect();
-        skew.push((19, 20.0 / 7.0));
-        let total: f64 = skew.iter().map(|c| c.1).sum();
-        assert_eq!(weighted_quantiles(&mut skew, total, 0.2), (12, 19));
+        let mut skew = vec![0.0; 30];
+        for m in &mut skew[10..20] {
+            *m = 1.0;
+        }
+        skew[19] += 20.0 / 7.0;
+        let total: f64 = skew.iter().sum();
+        assert_eq!(weighted_quantiles(&skew, total, 0.2), (12, 19));
     }
 
     #[test]

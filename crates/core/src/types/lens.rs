@@ -142,21 +142,27 @@ impl Rectifier {
     /// The rectified image of `img` (which must have the camera's size); pixels whose source
     /// lies outside the distorted image are black.
     pub fn apply(&self, img: &Rgb8) -> Rgb8 {
+        use rayon::prelude::*;
         let w = self.width as usize;
         let mut data = vec![0u8; self.taps.len() * 3];
-        for (o, &(i, ax, ay)) in data.chunks_exact_mut(3).zip(&self.taps) {
-            if i == u32::MAX {
-                continue;
-            }
-            let i = i as usize * 3;
-            let (ax, ay) = (u32::from(ax), u32::from(ay));
-            for (c, out) in o.iter_mut().enumerate() {
-                let p = |k: usize| u32::from(img.data[k + c]);
-                let top = p(i) * (256 - ax) + p(i + 3) * ax;
-                let bottom = p(i + w * 3) * (256 - ax) + p(i + w * 3 + 3) * ax;
-                *out = ((top * (256 - ay) + bottom * ay + 32768) >> 16) as u8;
-            }
-        }
+        // Rows in parallel: each output pixel depends on the source alone.
+        data.par_chunks_mut(w.max(1) * 3)
+            .zip(self.taps.par_chunks(w.max(1)))
+            .for_each(|(row, taps)| {
+                for (o, &(i, ax, ay)) in row.chunks_exact_mut(3).zip(taps) {
+                    if i == u32::MAX {
+                        continue;
+                    }
+                    let i = i as usize * 3;
+                    let (ax, ay) = (u32::from(ax), u32::from(ay));
+                    for (c, out) in o.iter_mut().enumerate() {
+                        let p = |k: usize| u32::from(img.data[k + c]);
+                        let top = p(i) * (256 - ax) + p(i + 3) * ax;
+                        let bottom = p(i + w * 3) * (256 - ax) + p(i + w * 3 + 3) * ax;
+                        *out = ((top * (256 - ay) + bottom * ay + 32768) >> 16) as u8;
+                    }
+                }
+            });
         Rgb8 {
             width: self.width,
             height: self.height,
