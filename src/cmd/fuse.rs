@@ -19,6 +19,7 @@ use objloc_core::learn::model::Model;
 use objloc_core::out::report::{Report, file_sha256};
 
 use super::TopicArgs;
+use super::progress::ReplayProgress;
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
@@ -97,6 +98,9 @@ pub struct FuseArgs {
     /// Evidence every cell of an object must have, as a fraction of the grid's highest.
     #[arg(long, default_value_t = ObjectParams::default().grow_fraction)]
     pub grow_fraction: f32,
+    /// No progress bar (there is none anyway when stderr is not a terminal).
+    #[arg(long, short)]
+    pub quiet: bool,
 }
 
 fn parse_floats(s: &str, n: usize) -> Result<Vec<f64>, String> {
@@ -207,13 +211,24 @@ pub fn fuse(
     let stream = viz::open_stream(rerun, default_rrd, &id, Some(viz::fuse_blueprint()))?;
     let result = if stream.is_on() {
         let mut observer = FuseViz::new(stream.rec.clone(), VizOptions::default());
-        let result = replay(&reader, &model, &options, &mut [&mut observer]);
+        let mut progress = ReplayProgress::new(args.quiet);
+        let result = replay(
+            &reader,
+            &model,
+            &options,
+            &mut [&mut observer, &mut progress],
+        );
         // The observer holds a handle on the recording: it must go before the stream is
         // closed.
         drop(observer);
         result
     } else {
-        replay(&reader, &model, &options, &mut [])
+        replay(
+            &reader,
+            &model,
+            &options,
+            &mut [&mut ReplayProgress::new(args.quiet)],
+        )
     };
     let outcome = match result {
         Ok(o) => o,

@@ -7,6 +7,7 @@ mod eval_rects;
 mod fuse;
 mod inspect;
 mod predict;
+mod progress;
 mod record;
 mod train;
 

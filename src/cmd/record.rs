@@ -1,11 +1,10 @@
 //! `objloc record sim|import`: parse options, show progress, call [`objloc_core::sim::record`] or
 //! [`objloc_core::io::import::import`].
 
-use std::io::IsTerminal;
 use std::path::PathBuf;
 
 use anyhow::Context;
-use indicatif::{ProgressBar, ProgressStyle};
+use indicatif::ProgressBar;
 
 use objloc_core::io::import::PoseFile;
 use objloc_core::sim::{Kind, SimOptions, SpeedNoise};
@@ -198,16 +197,7 @@ fn floats<const N: usize>(s: &str, what: &str) -> anyhow::Result<[f64; N]> {
 }
 
 fn progress_bar() -> ProgressBar {
-    if !std::io::stderr().is_terminal() {
-        return ProgressBar::hidden();
-    }
-    let bar = ProgressBar::new(0);
-    if let Ok(style) =
-        ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} frames ({per_sec}, eta {eta})")
-    {
-        bar.set_style(style.progress_chars("=> "));
-    }
-    bar
+    super::progress::frames_bar("", false)
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {

@@ -232,6 +232,22 @@ pub trait Observer {
     fn on_rollback(&mut self, _data: &SessionData) -> Result<(), ObserverError> {
         Ok(())
     }
+    /// Whether [`Observer::on_frame`] is wanted: building a [`FrameStep`] decodes the frame
+    /// again, which an observer of progress alone does not need.
+    fn wants_steps(&self) -> bool {
+        true
+    }
+    /// `done` of `total` frames through `stage` (every frame, whatever `wants_steps` says).
+    fn on_progress(&mut self, _stage: Stage, _done: usize, _total: usize) {}
+}
+
+/// A stage of the replay, for progress.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Stage {
+    /// Decoding and classifying the frames (once, before the first pass).
+    Classify,
+    /// Fusing them (once per pass; twice after a rollback).
+    Fuse,
 }
 
 /// The result of a replay.
@@ -299,7 +315,7 @@ pub fn replay(
     options: &FuseOptions,
     observers: &mut [&mut dyn Observer],
 ) -> Result<Outcome, ReplayError> {
-    let ctx = prepare(reader, classifier, &options.normalised())?;
+    let ctx = prepare(reader, classifier, &options.normalised(), observers)?;
     let options = &ctx.options.clone();
     for o in observers.iter_mut() {
         o.on_start(

@@ -145,7 +145,10 @@ fn step(
     );
     let objects = find_objects(&pass.fuser.grid, &options.objects);
     let cells_updated = pass.fuser.last_cells_updated;
-    if !observers.is_empty() {
+    for o in observers.iter_mut() {
+        o.on_progress(Stage::Fuse, index + 1, ctx.prepared.len());
+    }
+    if observers.iter().any(|o| o.wants_steps()) {
         let fr = &p.frame;
         let step = FrameStep {
             index,
@@ -160,7 +163,7 @@ fn step(
             cells_updated,
             objects: objects.clone(),
         };
-        for o in observers.iter_mut() {
+        for o in observers.iter_mut().filter(|o| o.wants_steps()) {
             o.on_frame(data, &step, &pass.fuser.grid)
                 .map_err(|e| ctx.observer_err(Some(fr), e))?;
         }

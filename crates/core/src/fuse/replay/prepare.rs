@@ -67,6 +67,7 @@ pub(super) fn prepare<'a>(
     reader: &'a SessionReader,
     classifier: &dyn FrameClassifier,
     options: &FuseOptions,
+    observers: &mut [&mut dyn Observer],
 ) -> Result<Context<'a>, ReplayError> {
     let mut data = load_session(reader)?;
     if options.poses == PoseSource::GroundTruth {
@@ -111,7 +112,7 @@ pub(super) fn prepare<'a>(
         options: options.clone(),
         choices,
     };
-    classify_frames(&mut ctx, classifier, &options)?;
+    classify_frames(&mut ctx, classifier, &options, observers)?;
     if ctx.prepared.is_empty() {
         return Err(ReplayError::NothingFused {
             path: ctx.data.path.clone(),
@@ -127,10 +128,15 @@ pub(super) fn classify_frames(
     ctx: &mut Context<'_>,
     classifier: &dyn FrameClassifier,
     options: &FuseOptions,
+    observers: &mut [&mut dyn Observer],
 ) -> Result<(), ReplayError> {
     let reader = ctx.reader;
     let floor_params = floor_params(options);
-    for fr in &ctx.data.frames {
+    let total = ctx.data.frames.len();
+    for (done, fr) in ctx.data.frames.iter().enumerate() {
+        for o in observers.iter_mut() {
+            o.on_progress(Stage::Classify, done, total);
+        }
         let at = || reader.at(Some(&fr.topic), fr.log_time_ns);
         let Some(odometry) = ctx.data.odom_at(fr.stamp_ns) else {
             ctx.warnings.push(format!(

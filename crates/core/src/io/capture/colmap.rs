@@ -45,28 +45,17 @@ fn camera_intrinsics(model: &str, w: u32, h: u32, p: &[f64]) -> Result<Intrinsic
                 ..z
             },
         ),
+        // OpenCV's order, as CameraInfo's plumb_bob d: k1, k2, p1, p2, k3.
         ("OPENCV", [fx, fy, cx, cy, k1, k2, p1, p2]) => (
             [*fx, *fy, *cx, *cy],
-            Distortion {
-                k1: *k1,
-                k2: *k2,
-                p1: *p1,
-                p2: *p2,
-                k3: 0.0,
-            },
+            Distortion::from_plumb_bob(&[*k1, *k2, *p1, *p2]),
         ),
         ("FULL_OPENCV", [fx, fy, cx, cy, k1, k2, p1, p2, k3, k4, k5, k6])
             if [*k4, *k5, *k6] == [0.0; 3] =>
         {
             (
                 [*fx, *fy, *cx, *cy],
-                Distortion {
-                    k1: *k1,
-                    k2: *k2,
-                    p1: *p1,
-                    p2: *p2,
-                    k3: *k3,
-                },
+                Distortion::from_plumb_bob(&[*k1, *k2, *p1, *p2, *k3]),
             )
         }
         _ => {
@@ -224,6 +213,12 @@ struct Bin<'a> {
     at: usize,
 }
 
+impl<'a> Bin<'a> {
+    fn new(path: &'a Path, bytes: &'a [u8]) -> Self {
+        Self { path, bytes, at: 0 }
+    }
+}
+
 impl Bin<'_> {
     fn take(&mut self, n: usize) -> Result<&[u8], CaptureError> {
         let end = self.at.checked_add(n).filter(|e| *e <= self.bytes.len());
@@ -278,11 +273,7 @@ impl Bin<'_> {
 
 fn cameras_bin(path: &Path) -> Result<BTreeMap<u32, Intrinsics>, CaptureError> {
     let bytes = read_bytes(path)?;
-    let mut b = Bin {
-        path,
-        bytes: &bytes,
-        at: 0,
-    };
+    let mut b = Bin::new(path, &bytes);
     let mut out = BTreeMap::new();
     for _ in 0..b.count(24)? {
         let id = b.i32()?;
@@ -311,11 +302,7 @@ fn cameras_bin(path: &Path) -> Result<BTreeMap<u32, Intrinsics>, CaptureError> {
 
 fn images_bin(path: &Path) -> Result<Vec<Image>, CaptureError> {
     let bytes = read_bytes(path)?;
-    let mut b = Bin {
-        path,
-        bytes: &bytes,
-        at: 0,
-    };
+    let mut b = Bin::new(path, &bytes);
     let mut out = Vec::new();
     for _ in 0..b.count(64)? {
         let _id = b.i32()?;

@@ -10,6 +10,7 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use super::ImportError;
+use crate::io::capture::CaptureError;
 use crate::io::msgs::RegionOfInterest;
 
 /// One label row: where it came from, the object it names (None: the import's default
@@ -40,10 +41,12 @@ pub fn parse_labels(path: &Path, text: &str) -> Result<Labels, ImportError> {
         {
             continue;
         }
-        let err = |what: String| ImportError::Line {
-            path: path.into(),
-            line,
-            what,
+        let err = |what: String| {
+            ImportError::File(CaptureError::Line {
+                path: path.into(),
+                line,
+                what,
+            })
         };
         let fields: Vec<&str> = content.split(',').map(str::trim).collect();
         if fields.len() != 5 && fields.len() != 6 {
@@ -107,14 +110,14 @@ fn mask_for(masks: &[PathBuf], image: &Path) -> Result<Option<PathBuf>, ImportEr
     match hits.as_slice() {
         [] => Ok(None),
         [one] => Ok(Some((*one).clone())),
-        [a, b, ..] => Err(ImportError::Invalid {
+        [a, b, ..] => Err(ImportError::File(CaptureError::Invalid {
             path: image.into(),
             what: format!(
                 "two masks match this image: {} and {}",
                 a.display(),
                 b.display()
             ),
-        }),
+        })),
     }
 }
 
@@ -145,9 +148,11 @@ pub fn labels_from_masks(
 
 /// The foreground box of one mask file in the pixels of an image of `size`.
 fn mask_box(mask: &Path, size: (u32, u32)) -> Result<Option<RegionOfInterest>, ImportError> {
-    let img = image::open(mask).map_err(|e| ImportError::Invalid {
-        path: mask.into(),
-        what: format!("mask does not decode: {e}"),
+    let img = image::open(mask).map_err(|e| {
+        ImportError::File(CaptureError::Invalid {
+            path: mask.into(),
+            what: format!("mask does not decode: {e}"),
+        })
     })?;
     let has_alpha = img.color().has_alpha();
     let rgba = img.into_rgba8();

@@ -50,36 +50,10 @@ const IMAGE_EXTENSIONS: [&str; 3] = ["png", "jpg", "jpeg"];
 /// Why a sequence cannot be imported; each names the file at fault.
 #[derive(Debug, Error)]
 pub enum ImportError {
-    /// A file or folder cannot be read.
-    #[error("{path}: {source}", path = path.display())]
-    Io {
-        /// The file or folder.
-        path: PathBuf,
-        /// The reason.
-        #[source]
-        source: std::io::Error,
-    },
-    /// A line of a text input (trajectory, labels) is malformed.
-    #[error("{path}:{line}: {what}", path = path.display())]
-    Line {
-        /// The file.
-        path: PathBuf,
-        /// 1-based line number.
-        line: usize,
-        /// What is wrong.
-        what: String,
-    },
-    /// A file (an image, a mask, the trajectory as a whole) cannot be used.
-    #[error("{path}: {what}", path = path.display())]
-    Invalid {
-        /// The file.
-        path: PathBuf,
-        /// What is wrong.
-        what: String,
-    },
-    /// A pose file of a capture cannot be read.
+    /// A file or folder cannot be read or used: the pose file, trajectory, labels, an image
+    /// or a mask, with the line, frame or entry at fault.
     #[error(transparent)]
-    Capture(#[from] CaptureError),
+    File(#[from] CaptureError),
     /// Boxed: a session error carries an MCAP error and the place it happened.
     #[error(transparent)]
     Session(Box<SessionError>),
@@ -173,9 +147,11 @@ struct Frame {
 }
 
 fn list_images(dir: &Path) -> Result<Vec<PathBuf>, ImportError> {
-    let io = |source| ImportError::Io {
-        path: dir.into(),
-        source,
+    let io = |source| {
+        ImportError::File(CaptureError::Io {
+            path: dir.into(),
+            source,
+        })
     };
     let mut files = Vec::new();
     for entry in std::fs::read_dir(dir).map_err(io)? {
@@ -191,10 +167,10 @@ fn list_images(dir: &Path) -> Result<Vec<PathBuf>, ImportError> {
     }
     files.sort_by(|a, b| a.file_name().cmp(&b.file_name()));
     if files.is_empty() {
-        return Err(ImportError::Invalid {
+        return Err(ImportError::File(CaptureError::Invalid {
             path: dir.into(),
             what: "no .png/.jpg/.jpeg images".into(),
-        });
+        }));
     }
     Ok(files)
 }
@@ -280,12 +256,14 @@ fn tum_intrinsics(
     Camera::from_k(width, height, [fx, 0.0, cx, 0.0, fy, cy, 0.0, 0.0, 1.0])
         .filter(|_| d.iter().all(|v| v.is_finite()))
         .map(|camera| Intrinsics { camera, distortion })
-        .ok_or_else(|| ImportError::Invalid {
-            path: trajectory.into(),
-            what: format!(
-                "--camera {fx},{fy},{cx},{cy}: focal lengths must be positive and all finite \
+        .ok_or_else(|| {
+            ImportError::File(CaptureError::Invalid {
+                path: trajectory.into(),
+                what: format!(
+                    "--camera {fx},{fy},{cx},{cy}: focal lengths must be positive and all finite \
                  (and the distortion finite)"
-            ),
+                ),
+            })
         })
 }
 
@@ -323,9 +301,11 @@ fn read_labels(
 ) -> Result<Option<(PathBuf, Labels)>, ImportError> {
     let labels = match (&opts.labels, &opts.masks) {
         (Some(p), _) => {
-            let text = std::fs::read_to_string(p).map_err(|source| ImportError::Io {
-                path: p.clone(),
-                source,
+            let text = std::fs::read_to_string(p).map_err(|source| {
+                ImportError::File(CaptureError::Io {
+                    path: p.clone(),
+                    source,
+                })
             })?;
             (p.clone(), parse_labels(p, &text)?)
         }
@@ -343,14 +323,14 @@ fn read_labels(
     };
     let names: Vec<String> = frames.iter().map(|f| name_of(&f.path)).collect();
     if let Some((name, rows)) = labels.1.iter().find(|(n, _)| !names.contains(n)) {
-        return Err(ImportError::Line {
+        return Err(ImportError::File(CaptureError::Line {
             path: labels.0.clone(),
             line: rows.first().map_or(0, |r| r.line),
             what: format!(
                 "image {name:?} is not in {}",
                 images_place(&opts.poses).display()
             ),
-        });
+        }));
     }
     Ok(Some(labels))
 }
@@ -379,29 +359,33 @@ fn check_stamps(frames: &[Frame]) -> Result<(), ImportError> {
         .windows(2)
         .position(|w| w[1].stamp_ns <= w[0].stamp_ns)
     {
-        return Err(ImportError::Invalid {
+        return Err(ImportError::File(CaptureError::Invalid {
             path: frames[w + 1].path.clone(),
             what: "timestamp is not after the previous image's".into(),
-        });
+        }));
     }
     if frames.first().is_some_and(|f| f.stamp_ns < 0) {
-        return Err(ImportError::Invalid {
+        return Err(ImportError::File(CaptureError::Invalid {
             path: frames[0].path.clone(),
             what: "stamps before 1970 cannot be MCAP log times".into(),
-        });
+        }));
     }
     Ok(())
 }
 
 /// The image file as PNG bytes and its size.
 fn png_of(path: &Path) -> Result<(Vec<u8>, u32, u32), ImportError> {
-    let invalid = |what: String| ImportError::Invalid {
-        path: path.into(),
-        what,
+    let invalid = |what: String| {
+        ImportError::File(CaptureError::Invalid {
+            path: path.into(),
+            what,
+        })
     };
-    let bytes = std::fs::read(path).map_err(|source| ImportError::Io {
-        path: path.into(),
-        source,
+    let bytes = std::fs::read(path).map_err(|source| {
+        ImportError::File(CaptureError::Io {
+            path: path.into(),
+            source,
+        })
     })?;
     let img = image::load_from_memory(&bytes)
         .map_err(|e| invalid(format!("image does not decode: {e}")))?
@@ -435,13 +419,13 @@ fn write_session(
         let (png, w, h) = png_of(&f.path)?;
         let c = &f.intrinsics.camera;
         if (w, h) != (c.width, c.height) {
-            return Err(ImportError::Invalid {
+            return Err(ImportError::File(CaptureError::Invalid {
                 path: f.path.clone(),
                 what: format!(
                     "image is {w} x {h} but its intrinsics are for {} x {}",
                     c.width, c.height
                 ),
-            });
+            }));
         }
         let stamp_ns = f.stamp_ns;
         let odom = Odometry {
@@ -507,14 +491,14 @@ fn frame_labels(
         if u64::from(r.x_offset) + u64::from(r.width) > u64::from(w)
             || u64::from(r.y_offset) + u64::from(r.height) > u64::from(h)
         {
-            return Err(ImportError::Line {
+            return Err(ImportError::File(CaptureError::Line {
                 path: lp.into(),
                 line: row.line,
                 what: format!(
                     "box x {} y {} {} x {} leaves the {w} x {h} image",
                     r.x_offset, r.y_offset, r.width, r.height
                 ),
-            });
+            }));
         }
         regions.push(r);
     }

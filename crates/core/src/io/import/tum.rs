@@ -8,6 +8,7 @@
 use std::path::{Path, PathBuf};
 
 use super::{Frame, ImportError, list_images};
+use crate::io::capture::CaptureError;
 use crate::io::capture::Intrinsics;
 use crate::types::geometry::{Iso3, iso_from_parts};
 use crate::types::track::PoseTrack;
@@ -23,9 +24,11 @@ pub(super) fn tum_frames(
     images_dir: &Path,
     intrinsics: Intrinsics,
 ) -> Result<(Vec<Frame>, bool), ImportError> {
-    let text = std::fs::read_to_string(trajectory).map_err(|source| ImportError::Io {
-        path: trajectory.into(),
-        source,
+    let text = std::fs::read_to_string(trajectory).map_err(|source| {
+        ImportError::File(CaptureError::Io {
+            path: trajectory.into(),
+            source,
+        })
     })?;
     let traj = parse_trajectory(trajectory, &text)?;
     let images = list_images(images_dir)?;
@@ -87,10 +90,12 @@ pub fn parse_trajectory(path: &Path, text: &str) -> Result<Vec<TrajectoryPose>, 
         if content.is_empty() {
             continue;
         }
-        let err = |what: String| ImportError::Line {
-            path: path.into(),
-            line,
-            what,
+        let err = |what: String| {
+            ImportError::File(CaptureError::Line {
+                path: path.into(),
+                line,
+                what,
+            })
         };
         let fields: Vec<&str> = content.split_whitespace().collect();
         if fields.len() != 8 {
@@ -127,10 +132,10 @@ pub fn parse_trajectory(path: &Path, text: &str) -> Result<Vec<TrajectoryPose>, 
         });
     }
     if out.is_empty() {
-        return Err(ImportError::Invalid {
+        return Err(ImportError::File(CaptureError::Invalid {
             path: path.into(),
             what: "trajectory has no poses".into(),
-        });
+        }));
     }
     Ok(out)
 }
@@ -174,7 +179,7 @@ fn pose_images(
         .collect();
     let Some(stamps) = stems else {
         if images.len() != traj.len() {
-            return Err(ImportError::Invalid {
+            return Err(ImportError::File(CaptureError::Invalid {
                 path: trajectory.into(),
                 what: format!(
                     "{} poses for {} images in {} (file names are not timestamps, so images are matched to lines in order)",
@@ -182,7 +187,7 @@ fn pose_images(
                     images.len(),
                     images_dir.display()
                 ),
-            });
+            }));
         }
         let posed = traj
             .iter()
@@ -194,12 +199,12 @@ fn pose_images(
         .iter()
         .zip(&stamps)
         .map(|(p, s)| {
-            pose_at(traj, *s)
-                .map(|pose| (*s, pose))
-                .map_err(|what| ImportError::Invalid {
+            pose_at(traj, *s).map(|pose| (*s, pose)).map_err(|what| {
+                ImportError::File(CaptureError::Invalid {
                     path: p.clone(),
                     what,
                 })
+            })
         })
         .collect::<Result<_, _>>()?;
     Ok((posed, true))

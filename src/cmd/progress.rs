@@ -1,0 +1,63 @@
+//! Progress bars for commands that can take more than a second: drawn on stderr when it is a
+//! terminal, nothing on a pipe, in a file or with `--quiet` (so logs and scripts see only
+//! the results), and never on stdout.
+
+use std::io::IsTerminal;
+
+use indicatif::{ProgressBar, ProgressStyle};
+
+use objloc_core::fuse::replay::{Observer, Stage};
+
+/// A bar counting frames, or a hidden one off a terminal or when `quiet`.
+pub fn frames_bar(message: &str, quiet: bool) -> ProgressBar {
+    if quiet || !std::io::stderr().is_terminal() {
+        return ProgressBar::hidden();
+    }
+    let bar = ProgressBar::new(0);
+    if let Ok(style) =
+        ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} frames ({per_sec}, eta {eta})")
+    {
+        bar.set_style(style.progress_chars("=> "));
+    }
+    bar.set_message(message.to_owned());
+    bar
+}
+
+/// The replay's progress as an observer: the frames classified, then fused (a second pass
+/// after a rollback counted again); it asks for no frame steps, so it costs nothing.
+pub struct ReplayProgress {
+    bar: ProgressBar,
+}
+
+impl ReplayProgress {
+    /// Progress of a replay, drawn as [`frames_bar`] draws.
+    pub fn new(quiet: bool) -> Self {
+        Self {
+            bar: frames_bar("fuse", quiet),
+        }
+    }
+}
+
+impl Observer for ReplayProgress {
+    fn wants_steps(&self) -> bool {
+        false
+    }
+
+    fn on_progress(&mut self, stage: Stage, done: usize, total: usize) {
+        let message = match stage {
+            Stage::Classify => "classify",
+            Stage::Fuse => "fuse",
+        };
+        if self.bar.message() != message {
+            self.bar.set_message(message);
+        }
+        self.bar.set_length(total as u64);
+        self.bar.set_position(done as u64);
+    }
+}
+
+impl Drop for ReplayProgress {
+    fn drop(&mut self) {
+        self.bar.finish_and_clear();
+    }
+}
