@@ -20,6 +20,8 @@ mod fuser;
 mod pass;
 mod prepare;
 mod session_data;
+#[cfg(test)]
+mod tests;
 mod tf;
 
 pub use check::{ROLLBACK_TOLERANCE, RefinementCheck};
@@ -31,7 +33,7 @@ pub use pass::{CORRECTION_RETENTION, MAX_FLOOR_FAILURES};
 pub use session_data::{
     DEFAULT_BOUNDS_MARGIN_M, DEFAULT_MIN_SIDE_M, FrameRef, SessionData, load_session,
 };
-pub use tf::{MAX_CHAIN, TfTree};
+pub use tf::{MAX_CHAIN, TfError, TfTree};
 
 use check::check_refinement;
 use pass::{Pass, run_pass};

@@ -6,7 +6,7 @@ use crate::io::session::{At, Role, SessionMsg, SessionReader, TimedMsg};
 use crate::types::geometry::{Camera, Iso3, iso_from_parts};
 use crate::types::lens::{Distortion, Rectifier};
 
-use super::tf::TfTree;
+use super::tf::{TfError, TfTree};
 use crate::types::track::PoseTrack;
 
 use super::*;
@@ -68,7 +68,7 @@ pub struct SessionData {
 impl SessionData {
     /// The camera mount (base_from_camera) at `stamp_ns`: the chain from the odometry's
     /// child frame to the camera's frame (see [`TfTree`]), or why there is none.
-    pub fn mount_at(&self, stamp_ns: i64) -> Result<Iso3, String> {
+    pub fn mount_at(&self, stamp_ns: i64) -> Result<Iso3, TfError> {
         let cam = &self.camera_frame_id;
         // Older bags name another parent than the odometry's child: a lone transform to the
         // camera still is its mount. A longer chain that misses the base is not (a head's

@@ -16,6 +16,46 @@ use crate::types::track::PoseTrack;
 /// Most edges between the base and the camera before a chain is taken to be a loop.
 pub const MAX_CHAIN: usize = 64;
 
+/// Why the tree gives no transform at a stamp.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum TfError {
+    /// No transform names the frame as its child.
+    #[error("no transform to {frame:?}")]
+    NoTransform {
+        /// The frame looked up.
+        frame: String,
+    },
+    /// The frame's chain of parents ends before the base.
+    #[error("{frame:?} is not connected to {base:?} (its chain ends at {root:?})")]
+    NotConnected {
+        /// The frame looked up.
+        frame: String,
+        /// The base asked for.
+        base: String,
+        /// Where the chain of parents ends.
+        root: String,
+    },
+    /// A moving edge has no sample near the stamp.
+    #[error(
+        "{parent} -> {child} has no sample within 50 ms of stamp {stamp_ns} ns (tf2 does not \
+         extrapolate)"
+    )]
+    NoSample {
+        /// The edge's parent frame.
+        parent: String,
+        /// The edge's child frame.
+        child: String,
+        /// The stamp looked up, ns since the epoch.
+        stamp_ns: i64,
+    },
+    /// The parents form a loop.
+    #[error("the transforms above {frame:?} form a loop")]
+    Loop {
+        /// The frame looked up.
+        frame: String,
+    },
+}
+
 /// Stamped samples of one edge: (stamp ns, parent_from_child).
 type Samples = Vec<(i64, Iso3)>;
 
@@ -76,7 +116,7 @@ impl TfTree {
 
     /// `base_from_frame` at `stamp_ns`: the chain up from `frame` to `base` (or to the root
     /// of its tree when `base` is None), or why not.
-    pub fn lookup(&self, base: Option<&str>, frame: &str, stamp_ns: i64) -> Result<Iso3, String> {
+    pub fn lookup(&self, base: Option<&str>, frame: &str, stamp_ns: i64) -> Result<Iso3, TfError> {
         let mut out = Iso3::identity();
         let mut at = frame;
         for _ in 0..MAX_CHAIN {
@@ -86,28 +126,35 @@ impl TfTree {
             let Some(edge) = self.edges.get(at) else {
                 return match base {
                     None if at != frame => Ok(out),
-                    None => Err(format!("no transform to {frame:?}")),
-                    Some(b) => Err(format!(
-                        "{frame:?} is not connected to {b:?} (its chain ends at {at:?})"
-                    )),
+                    None => Err(TfError::NoTransform {
+                        frame: frame.into(),
+                    }),
+                    Some(b) => Err(TfError::NotConnected {
+                        frame: frame.into(),
+                        base: b.into(),
+                        root: at.into(),
+                    }),
                 };
             };
             let (parent, parent_from_child) = match edge {
                 Edge::Static(p, iso) => (p.as_str(), *iso),
                 Edge::Dynamic(p, track) => (
                     p.as_str(),
-                    track.interpolated(stamp_ns).ok_or_else(|| {
-                        format!(
-                            "{p} -> {at} has no sample within 50 ms of stamp {stamp_ns} ns (tf2 \
-                             does not extrapolate)"
-                        )
-                    })?,
+                    track
+                        .interpolated(stamp_ns)
+                        .ok_or_else(|| TfError::NoSample {
+                            parent: p.clone(),
+                            child: at.into(),
+                            stamp_ns,
+                        })?,
                 ),
             };
             out = parent_from_child * out;
             at = parent;
         }
-        Err(format!("the transforms above {frame:?} form a loop"))
+        Err(TfError::Loop {
+            frame: frame.into(),
+        })
     }
 }
 
@@ -154,7 +201,8 @@ mod tests {
         let e = tree
             .lookup(Some("base_link"), "camera", 1_060_001_000)
             .unwrap_err();
-        assert!(e.contains("does not extrapolate"), "{e}");
+        assert!(matches!(e, TfError::NoSample { ref parent, .. } if parent == "pan_base"));
+        assert!(e.to_string().contains("does not extrapolate"), "{e}");
         // Without a base: the root of the chain.
         let r = tree.lookup(None, "camera", 1_000).unwrap();
         assert!((r.translation.vector - Vector3::new(0.1, 0.0, 0.55)).norm() < 1e-12);
