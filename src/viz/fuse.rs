@@ -483,6 +483,28 @@ impl FuseViz {
         )
         .map_err(log_err)?;
 
+        // The located centres on the frame (rectified, so the pinhole projects them), to see
+        // at a glance whether the frame's rectangle holds them.
+        let camera_from_odom = step.odom_from_camera.inverse();
+        let located: Vec<[f32; 2]> = objects
+            .iter()
+            .filter_map(|o| {
+                let q = camera_from_odom * nalgebra::Point3::from(o.centroid_m);
+                data.camera.project(&q).map(|(u, v)| [u as f32, v as f32])
+            })
+            .collect();
+        rec.log(
+            "world/robot/camera/located",
+            &rerun::Points2D::new(located)
+                .with_colors([rerun::Color::from_rgb(
+                    ESTIMATE_RGB[0],
+                    ESTIMATE_RGB[1],
+                    ESTIMATE_RGB[2],
+                )])
+                .with_radii([rerun::Radius::new_ui_points(8.0)]),
+        )
+        .map_err(log_err)?;
+
         scalar(rec, "plots/max_posterior", s.max_posterior)?;
         scalar(rec, "plots/mean_entropy_bits", s.mean_entropy_bits)?;
         scalar(rec, "counts/cells_updated", step.cells_updated as f64)?;

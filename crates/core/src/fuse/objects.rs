@@ -217,6 +217,10 @@ pub fn find_objects_with_cells(grid: &Grid, params: &ObjectParams) -> Vec<(Objec
     if params.merge_nested {
         objects = merge_nested(grid, objects);
     }
+    // Instances of one object have similar sizes: a component this much smaller than the
+    // largest is a speck of false evidence, not an instance (see MIN_RELATIVE_CELLS).
+    let largest = objects.iter().map(|(o, _)| o.cells).max().unwrap_or(0);
+    objects.retain(|(o, _)| o.cells * MIN_RELATIVE_CELLS_INV >= largest);
     objects.sort_by(|(a, _), (b, _)| {
         let ma = a.mean_probability * a.cells as f64;
         let mb = b.mean_probability * b.cells as f64;
@@ -224,6 +228,11 @@ pub fn find_objects_with_cells(grid: &Grid, params: &ObjectParams) -> Vec<(Objec
     });
     objects
 }
+
+/// A component with fewer than 1/`MIN_RELATIVE_CELLS_INV` of the largest one's cells is
+/// dropped: one object's instances differ in size by less (a partly seen vase still has a
+/// good fraction of its twin's cells), false evidence gathers in specks.
+pub const MIN_RELATIVE_CELLS_INV: usize = 50;
 
 /// A component with at most 1/`FRAGMENT_RATIO` of a larger one's cells is merged into it
 /// when its centroid lies within `FRAGMENT_MARGIN_CELLS` cells of that one's box, or below
@@ -401,6 +410,23 @@ mod tests {
     }
 
     #[test]
+    fn a_speck_far_smaller_than_the_object_is_not_an_instance() {
+        // A 10 x 10 x 10 object (1000 cells) and, apart from it, a 4-cell speck as strong:
+        // 4 * 50 < 1000, dropped; a 20-cell blob (20 * 50 = 1000) is kept as an instance.
+        let speck = grid_with(&[
+            ([0, 0, 0], [10, 10, 10], 20.0, 6),
+            ([15, 15, 15], [17, 17, 16], 20.0, 6),
+        ]);
+        assert_eq!(find_objects(&speck, &ObjectParams::default()).len(), 1);
+        let blob = grid_with(&[
+            ([0, 0, 0], [10, 10, 10], 20.0, 6),
+            ([15, 15, 15], [20, 17, 17], 20.0, 6),
+        ]);
+        let objs = find_objects(&blob, &ObjectParams::default());
+        assert_eq!(objs.iter().map(|o| o.cells).collect::<Vec<_>>(), [1000, 20]);
+    }
+
+    #[test]
     fn single_view_and_weak_blobs_are_not_objects() {
         let g = grid_with(&[
             // Strong but seen by one view only: one pyramid.
@@ -468,9 +494,12 @@ mod tests {
         let objs = find_objects(&g, &ObjectParams::default());
         assert_eq!(objs.len(), 1);
         assert_eq!(objs[0].cells, 432 + 8);
-        // The same piece three cells beyond (centroid 3.5 cells out): an object of its own.
-        let g = grid_with(&[chair, ([13, 4, 6], [14, 6, 10], 20.0, 6)]);
+        // The same piece three cells beyond (centroid 3.5 cells out): an object of its own
+        // once it is no speck (1 x 3 x 4 = 12 cells, 12 * 50 >= 432); at 8 cells it is one.
+        let g = grid_with(&[chair, ([13, 4, 6], [14, 7, 10], 20.0, 6)]);
         assert_eq!(find_objects(&g, &ObjectParams::default()).len(), 2);
+        let g = grid_with(&[chair, ([13, 4, 6], [14, 6, 10], 20.0, 6)]);
+        assert_eq!(find_objects(&g, &ObjectParams::default()).len(), 1);
         // As close, but 1 x 10 x 12 = 120 cells, over a fifth of the chair: not a fragment.
         let g = grid_with(&[chair, ([11, 2, 0], [12, 12, 12], 20.0, 6)]);
         assert_eq!(find_objects(&g, &ObjectParams::default()).len(), 2);
