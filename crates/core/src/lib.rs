@@ -5,18 +5,21 @@
 //!
 //! * [`types`]: shared values below everything (geometry, images, pose tracks, tile
 //!   probabilities, a seeded RNG); imports nothing of the crate.
-//! * [`io`]: MCAP sessions <-> typed ROS 2 messages, importers of real captures, the
-//!   inspector, `.npy` and atomic output files; imports [`types`].
+//! * [`io`]: MCAP sessions <-> typed ROS 2 messages, the pose files of real captures and
+//!   their import (TUM, NeRF, COLMAP, LLFF, IDR; labels and masks), the inspector, `.npy` and
+//!   atomic output files; imports [`types`].
 //! * [`learn`]: tile features, training examples, the decision trees and the model file;
 //!   imports [`types`] (labelled frames come in as typed values).
 //! * [`fuse`]: the deterministic replay of one session (the only part of it that reads a
-//!   session) driving the fuser state: grid, motion blur, pose refinement against the
-//!   landmarks and the floor, objects; imports [`types`], [`io`] and [`learn`].
-//! * [`out`]: the report and its evaluation against ground truth; imports all of the above.
+//!   session, with its transform tree and the defaults fitted to it) driving the fuser
+//!   state: grid, motion blur, pose refinement against the landmarks and the floor, objects;
+//!   imports [`types`], [`io`] and [`learn`].
+//! * [`out`]: the report and its evaluation against ground truth or label rectangles;
+//!   imports all of the above.
 //! * [`sim`]: the simulator, a recorder like any other: it writes through [`io`]'s session
 //!   writer; imports [`types`] and [`io`].
 //!
-//! Each folder's `mod.rs` repeats its rule, and `tests/it`'s layout test enforces them.
+//! Each folder's `mod.rs` repeats its rule, and the `layout` unit test below enforces them.
 //! The fuser core takes typed values and returns state: no files, no clock, no viewer.
 
 // Errors here carry the file, topic, log time and the numbers involved, so some exceed
