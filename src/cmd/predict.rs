@@ -27,6 +27,9 @@ pub struct Args {
     /// Score only against labels naming this object (default: the model's object, if any).
     #[arg(long)]
     object: Option<String>,
+    /// No progress bar (there is none anyway when stderr is not a terminal).
+    #[arg(long, short)]
+    quiet: bool,
     #[command(flatten)]
     topics: TopicArgs,
     #[command(flatten)]
@@ -39,9 +42,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let object = args.object.or_else(|| model.metadata.object.clone());
     let session = load_session(&args.session, topics, object.as_deref(), false)
         .context("predict: reading the session")?;
+    let heads = if model.region.is_some() { 2 } else { 1 };
+    let bar = super::progress::frames_bar("predict", args.quiet);
+    bar.set_length((session.frames.len() * heads) as u64);
     let pred = model
-        .predict_session(&session)
+        .predict_session(&session, &|| bar.inc(1))
         .context("predict: classifying frames")?;
+    bar.finish_and_clear();
     pred.write(&args.out, &session, args.heatmaps)
         .context("predict: writing outputs")?;
     // The frames with their labels and maps, in Rerun (by default beside the outputs).

@@ -493,9 +493,11 @@ pub struct SessionPrediction {
 
 impl Model {
     /// Predicts every frame; all frames must share one size (the maps form one array).
+    /// `progress` is called once per frame and head as it is done (from worker threads).
     pub fn predict_session(
         &self,
         session: &LoadedSession,
+        progress: &(dyn Fn() + Sync),
     ) -> Result<SessionPrediction, ModelError> {
         if let Some(first) = session.frames.first() {
             let size = |f: &crate::learn::dataset::SessionFrame| (f.image.width, f.image.height);
@@ -516,13 +518,21 @@ impl Model {
         let tile_maps: Vec<TileProbs> = session
             .frames
             .par_iter()
-            .map(|f| self.predict(&f.image))
+            .map(|f| {
+                let p = self.predict(&f.image);
+                progress();
+                p
+            })
             .collect();
         let maps: Vec<TileProbs> = match &self.region {
             Some(region) => session
                 .frames
                 .par_iter()
-                .map(|f| region.predict(&f.image))
+                .map(|f| {
+                    let p = region.predict(&f.image);
+                    progress();
+                    p
+                })
                 .collect(),
             None => tile_maps.clone(),
         };
