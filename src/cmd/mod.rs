@@ -90,33 +90,3 @@ pub fn main(cli: Cli) -> std::process::ExitCode {
         }
     }
 }
-
-#[cfg(test)]
-mod tests {
-    use clap::CommandFactory;
-
-    /// Every subcommand's short flags are unique. clap checks this itself only in a debug
-    /// build (where a clash panics at parse time), and the tests run in release; RerunArgs,
-    /// flattened into four commands, brings its own `-o`.
-    #[test]
-    fn short_flags_are_unique_in_every_subcommand() {
-        let cli = super::Cli::command();
-        let mut checked = 0;
-        for sub in cli.get_subcommands() {
-            let mut seen = std::collections::BTreeMap::new();
-            for arg in sub.get_arguments() {
-                if let Some(c) = arg.get_short() {
-                    let id = arg.get_id().to_string();
-                    if let Some(other) = seen.insert(c, id.clone()) {
-                        panic!(
-                            "objloc {}: -{c} is both --{other} and --{id}",
-                            sub.get_name()
-                        );
-                    }
-                }
-            }
-            checked += 1;
-        }
-        assert_eq!(checked, 7);
-    }
-}

@@ -23,6 +23,20 @@ pub fn frames_bar(message: &str, quiet: bool) -> ProgressBar {
     bar
 }
 
+/// A spinner naming the stage a command is in (for stages without a frame count), or a
+/// hidden one off a terminal or when `quiet`.
+pub fn stage_spinner(quiet: bool) -> ProgressBar {
+    if quiet || !std::io::stderr().is_terminal() {
+        return ProgressBar::hidden();
+    }
+    let bar = ProgressBar::new_spinner();
+    if let Ok(style) = ProgressStyle::with_template("{spinner} {msg} ({elapsed})") {
+        bar.set_style(style);
+    }
+    bar.enable_steady_tick(std::time::Duration::from_millis(120));
+    bar
+}
+
 /// The replay's progress as an observer: the frames classified, then fused (a second pass
 /// after a rollback counted again); it asks for no frame steps, so it costs nothing.
 pub struct ReplayProgress {

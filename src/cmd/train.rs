@@ -20,6 +20,9 @@ pub struct Args {
     /// Where to write the model JSON.
     #[arg(short = 'o', long = "output")]
     output: PathBuf,
+    /// No progress spinner (there is none anyway when stderr is not a terminal).
+    #[arg(long, short)]
+    quiet: bool,
     /// Colour quantisation of the tile histograms. rgb332 is the default: on the shipped
     /// tours its maps fuse into tighter objects than hsv's (docs/fuser.md), though hsv scores
     /// a slightly higher tile AUC.
@@ -171,6 +174,8 @@ fn log_to_rerun(args: &Args, model: &Model, sessions: &[LoadedSession]) -> anyho
 pub fn run(args: Args) -> anyhow::Result<()> {
     let topics = args.topics.topics()?;
     let cfg = config(&args)?;
+    let stage = super::progress::stage_spinner(args.quiet);
+    stage.set_message("train: reading sessions");
     let t0 = Instant::now();
     let sessions = args
         .sessions
@@ -180,13 +185,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .context("train: reading sessions")?;
     let t_load = t0.elapsed();
     let t1 = Instant::now();
+    stage.set_message("train: tile features");
     let set = examples(&sessions, &cfg).context("train: building examples")?;
+    stage.set_message("train: fitting the tile head");
     let mut t_features = t1.elapsed();
     let t2 = Instant::now();
     let mut model = fit_model(&sessions, &set, &cfg).context("train: fitting the tree")?;
     let mut t_fit = t2.elapsed();
     if let Some(region_cfg) = cfg.region_config() {
         let t3 = Instant::now();
+        stage.set_message("train: the region head");
         let region_set = examples(&sessions, &region_cfg)
             .context("train: building the region head's examples")?;
         t_features += t3.elapsed();
@@ -196,6 +204,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         t_fit += t4.elapsed();
         model.region = Some(Box::new(region));
     }
+    stage.finish_and_clear();
     model
         .save(&args.output)
         .context("train: writing the model")?;

@@ -1243,3 +1243,41 @@ proptest! {
         assert_clean_exit(&run, if run.code == Some(1) && !run.stderr.contains("mutant.json") { &clean } else { &bad_model });
     }
 }
+
+/// Every subcommand's short flags are unique, read from its `--help` as a user sees it.
+/// clap checks this itself only in a debug build (where a clash panics at parse time), and
+/// the tests run in release; RerunArgs, flattened into four commands, brings its own `-o`.
+#[test]
+fn short_flags_are_unique_in_every_subcommand() {
+    let subcommands: [&[&str]; 8] = [
+        &["inspect"],
+        &["record", "sim"],
+        &["record", "import"],
+        &["train"],
+        &["predict"],
+        &["fuse"],
+        &["eval"],
+        &["demo"],
+    ];
+    for sub in subcommands {
+        let mut args: Vec<&str> = sub.to_vec();
+        args.push("--help");
+        let help = crate::common::ok(&crate::common::objloc(&args, &[]));
+        let mut seen = std::collections::BTreeMap::new();
+        for line in help.lines() {
+            let t = line.trim_start();
+            // "-o, --output <OUTPUT>"
+            let Some(rest) = t.strip_prefix('-') else {
+                continue;
+            };
+            let mut chars = rest.chars();
+            let (Some(c), Some(',')) = (chars.next(), chars.next()) else {
+                continue;
+            };
+            let long = t.split_whitespace().nth(1).unwrap_or("").to_owned();
+            if let Some(other) = seen.insert(c, long.clone()) {
+                panic!("objloc {}: -{c} is both {other} and {long}", sub.join(" "));
+            }
+        }
+    }
+}
