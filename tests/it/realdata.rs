@@ -49,6 +49,8 @@ fn the_phone_capture_imports_with_its_distortion_and_two_objects_per_frame() {
     );
     let inspect = ok(&objloc(&["inspect", p(&out)], &[]));
     assert!(inspect.contains("/labels"), "{inspect}");
+    // The phone's JPEGs are carried as they are, not re-encoded.
+    assert!(inspect.contains("605 x 806 jpeg"), "{inspect}");
 }
 
 #[test]

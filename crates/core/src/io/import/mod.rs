@@ -374,7 +374,10 @@ fn check_stamps(frames: &[Frame]) -> Result<(), ImportError> {
 }
 
 /// The image file as PNG bytes and its size.
-fn png_of(path: &Path) -> Result<(Vec<u8>, u32, u32), ImportError> {
+/// The image file as the CompressedImage will carry it, with its format and size: a JPEG
+/// as it is (a camera's own bytes, a fraction of a PNG's size; it decodes to the same
+/// pixels every time), anything else decoded and written as an 8-bit RGB PNG.
+fn encoded_of(path: &Path) -> Result<(&'static str, Vec<u8>, u32, u32), ImportError> {
     let invalid = |what: String| {
         ImportError::File(CaptureError::Invalid {
             path: path.into(),
@@ -388,11 +391,14 @@ fn png_of(path: &Path) -> Result<(Vec<u8>, u32, u32), ImportError> {
         })
     })?;
     let img = image::load_from_memory(&bytes)
-        .map_err(|e| invalid(format!("image does not decode: {e}")))?
-        .into_rgb8();
-    let (w, h) = img.dimensions();
-    let png = crate::types::image::encode_png(w, h, img.as_raw()).map_err(invalid)?;
-    Ok((png, w, h))
+        .map_err(|e| invalid(format!("image does not decode: {e}")))?;
+    let (w, h) = (img.width(), img.height());
+    if bytes.starts_with(&[0xFF, 0xD8, 0xFF]) {
+        return Ok(("jpeg", bytes, w, h));
+    }
+    let rgb = img.into_rgb8();
+    let png = crate::types::image::encode_png(w, h, rgb.as_raw()).map_err(invalid)?;
+    Ok(("png", png, w, h))
 }
 
 fn write_session(
@@ -416,7 +422,7 @@ fn write_session(
     writer.write(&topics.tf_static, first_ns, &tf)?;
     let mut labelled = 0;
     for (k, f) in frames.iter().enumerate() {
-        let (png, w, h) = png_of(&f.path)?;
+        let (format, data, w, h) = encoded_of(&f.path)?;
         let c = &f.intrinsics.camera;
         if (w, h) != (c.width, c.height) {
             return Err(ImportError::File(CaptureError::Invalid {
@@ -440,8 +446,8 @@ fn write_session(
         let header = Header::new(stamp_ns, "camera_optical_frame");
         let image = CompressedImage {
             header: header.clone(),
-            format: "png".into(),
-            data: png,
+            format: format.into(),
+            data,
         };
         writer.write(&topics.compressed_image, stamp_ns, &image)?;
         writer.write(
