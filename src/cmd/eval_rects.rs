@@ -46,7 +46,7 @@ pub fn run(reader: &SessionReader, args: &Args) -> anyhow::Result<()> {
         camera: data.camera,
         distortion: data.distortion,
     };
-    let mut scores: Vec<(String, RectScore)> = Vec::new();
+    let mut scores: Vec<(String, RectScore, Option<f64>)> = Vec::new();
     for path in &args.reports {
         let report = read_report(path)?;
         let object = args.object.clone().or_else(|| {
@@ -55,6 +55,7 @@ pub fn run(reader: &SessionReader, args: &Args) -> anyhow::Result<()> {
                 .and_then(|m| m.metadata.object)
         });
         let candidates: Vec<[f64; 3]> = report.objects.iter().map(|o| o.centroid_m).collect();
+        let auc = tile_auc(&report, args, object.as_deref());
         for (name, frames) in &rects {
             if object.as_ref().is_some_and(|o| o != name) {
                 continue;
@@ -73,22 +74,48 @@ pub fn run(reader: &SessionReader, args: &Args) -> anyhow::Result<()> {
                 .collect();
             let mut s = score(name, &cam, &views, &candidates);
             s.object = format!("{name} ({} objects located)", candidates.len());
-            scores.push((path.display().to_string(), s));
+            scores.push((path.display().to_string(), s, auc));
         }
     }
     if args.json {
         let json: Vec<_> = scores
             .iter()
-            .map(|(r, s)| serde_json::json!({"report": r, "score": s}))
+            .map(|(r, s, auc)| serde_json::json!({"report": r, "score": s, "tile_auc": auc}))
             .collect();
         println!("{}", serde_json::to_string_pretty(&json)?);
     } else {
         println!("{session}: no ground truth; scored against the label rectangles");
-        for (r, s) in &scores {
+        for (r, s, auc) in &scores {
             print_score(r, s);
+            match auc {
+                Some(a) => {
+                    println!("  tile ROC AUC of the fuser's evidence (the tile head): {a:.4}")
+                }
+                None => {
+                    println!("  tile ROC AUC: n/a (the report's model file is absent or changed)")
+                }
+            }
         }
     }
     Ok(())
+}
+
+/// The tile ROC AUC of the report's model's tile head (the fuser's evidence) against the
+/// session's rectangles of `object`; None when the model file is gone or no longer the one
+/// the report was fused with, or a class is missing.
+fn tile_auc(
+    report: &objloc_core::out::report::Report,
+    args: &Args,
+    object: Option<&str>,
+) -> Option<f64> {
+    let path = std::path::Path::new(&report.model);
+    let same = objloc_core::out::report::file_sha256(path).ok()? == report.model_sha256;
+    let model = Model::load(path).ok().filter(|_| same)?;
+    let topics = args.topics.topics().ok()?;
+    let session =
+        objloc_core::learn::dataset::load_session(&args.session, topics, object, true).ok()?;
+    let pred = model.predict_session(&session, &|| {}).ok()?;
+    pred.tile_labelled?.roc_auc
 }
 
 fn print_score(report: &str, s: &RectScore) {

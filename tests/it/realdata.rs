@@ -127,6 +127,14 @@ fn the_milk_carton_is_located_inside_its_rectangles_with_fitted_defaults() {
         ev.contains("inside the rectangle in 43 of 43 frames"),
         "{ev}"
     );
+    // Measured 0.865 (`objloc predict` gives the same; the target of 0.93 is not met yet).
+    let auc: f64 = ev
+        .split("tile ROC AUC of the fuser's evidence (the tile head): ")
+        .nth(1)
+        .and_then(|s| s.split_whitespace().next())
+        .and_then(|s| s.parse().ok())
+        .unwrap_or_else(|| panic!("no tile AUC in {ev}"));
+    assert!((0.8..1.0).contains(&auc), "{ev}");
     let frac: f64 = ev
         .split(" % of the size")
         .next()
