@@ -277,8 +277,15 @@ pub fn write_outputs(f: &Fused, report: Option<&Path>, grid: Option<&Path>) -> a
 /// The human summary of a fuse.
 pub fn print_summary(f: &Fused) {
     let r = &f.report;
+    // A ground robot's odom is metric; a capture without /cmd_vel (SfM, NeRF, LLFF poses)
+    // is in whatever unit its poses are, and the numbers should not pretend otherwise.
+    let m = if r.fitted.is_empty() {
+        " m"
+    } else {
+        " (session units)"
+    };
     println!(
-        "fused {} of {} frames into {} x {} x {} cells of {} m (prior {:.5}, grid sha256 {})",
+        "fused {} of {} frames into {} x {} x {} cells of {}{m} (prior {:.5}, grid sha256 {})",
         r.frames,
         r.frames_in_session,
         r.grid.dims[0],
@@ -293,7 +300,7 @@ pub fn print_summary(f: &Fused) {
     }
     for (i, o) in r.objects.iter().enumerate() {
         println!(
-            "object {i}: at ({:.3}, {:.3}, {:.3}) m (mass centroid ({:.3}, {:.3}, {:.3}) m), box ({:.2}, {:.2}, {:.2})..({:.2}, {:.2}, {:.2}) m, {} cells, peak p {:.4}, mean p {:.4}",
+            "object {i}: at ({:.3}, {:.3}, {:.3}){m} (mass centroid ({:.3}, {:.3}, {:.3})), box ({:.2}, {:.2}, {:.2})..({:.2}, {:.2}, {:.2}), {} cells, peak p {:.4}, mean p {:.4}",
             o.centroid_m[0],
             o.centroid_m[1],
             o.centroid_m[2],
