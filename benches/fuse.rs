@@ -141,8 +141,84 @@ fn chair_tour() {
     );
 }
 
+/// A 1080 x 1920 camera (a phone's portrait frame) on the chair scene: training on three such
+/// frames, and a frame classified and fused, default options and `--no-refine-poses`, against
+/// the shipped 256 x 240 camera's frame as the peer (the resolution's cost); medians of 3.
+fn camera_resolution() {
+    use objloc_core::fuse::replay::{FuseOptions, replay};
+    use objloc_core::io::session::{SessionReader, Topics};
+    use objloc_core::learn::dataset::load_session;
+    use objloc_core::learn::model::{TrainConfig, examples, fit_model};
+    use objloc_core::sim::{Kind, SimOptions, builtin_scene, record};
+    let dir = std::env::temp_dir().join(format!("objloc-bench-res-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let mut per_frame = Vec::new();
+    for (w, h) in [(256u32, 240u32), (1080, 1920)] {
+        let mut scene = builtin_scene("chair").unwrap();
+        scene.camera.width = w;
+        scene.camera.height = h;
+        let train = dir.join(format!("train-{w}.mcap"));
+        let tour = dir.join(format!("tour-{w}.mcap"));
+        record(
+            &scene,
+            &SimOptions::new(Kind::Train, 1),
+            &train,
+            &mut |_, _| {},
+        )
+        .unwrap();
+        record(
+            &scene,
+            &SimOptions::new(Kind::Tour, 1),
+            &tour,
+            &mut |_, _| {},
+        )
+        .unwrap();
+        let cfg = TrainConfig::default();
+        let mut model = None;
+        // Loading, features and both heads, as `objloc train` does them.
+        let train_ms = median_ms(3, || {
+            let mut one = load_session(&train, Topics::default(), None, true).unwrap();
+            // The three labelled views alone, as a capture with rectangles in three frames.
+            one.frames
+                .retain(|f| f.regions.as_ref().is_some_and(|r| !r.is_empty()));
+            let s = [one];
+            let set = examples(&s, &cfg).unwrap();
+            let mut m = fit_model(&s, &set, &cfg).unwrap();
+            if let Some(rc) = cfg.region_config() {
+                let rs = examples(&s, &rc).unwrap();
+                m.region = Some(Box::new(fit_model(&s, &rs, &rc).unwrap()));
+            }
+            model = Some(m);
+        });
+        let model = model.unwrap();
+        let reader = SessionReader::open(&tour, Topics::default()).unwrap();
+        let frames = reader.count(&Topics::default().compressed_image) as f64;
+        let options = FuseOptions::default();
+        let paper = FuseOptions {
+            refine_poses: false,
+            ..options.clone()
+        };
+        let refined = median_ms(3, || {
+            black_box(replay(&reader, &model, &options, &mut []).unwrap());
+        }) / frames;
+        let plain = median_ms(3, || {
+            black_box(replay(&reader, &model, &paper, &mut []).unwrap());
+        }) / frames;
+        println!(
+            "{w} x {h} camera: training on its 3 labelled views (both heads) {train_ms:.0} ms; a frame classified and fused {refined:.1} ms (default), {plain:.1} ms (--no-refine-poses)"
+        );
+        per_frame.push(refined);
+    }
+    println!(
+        "1080 x 1920 against 256 x 240 (33.75x the pixels): {:.1}x the time a frame",
+        per_frame[1] / per_frame[0]
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 fn main() {
     chair_tour();
+    camera_resolution();
     let threads = rayon::current_num_threads();
     println!("fuser benchmarks, {threads} rayon threads, medians");
     let mut sizes = vec![50usize, 100, 200];
