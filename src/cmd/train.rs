@@ -186,7 +186,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let t_load = t0.elapsed();
     let t1 = Instant::now();
     stage.set_message("train: tile features");
-    let set = examples(&sessions, &cfg).context("train: building examples")?;
+    // A session set can fail as a whole (no positive tile in any of them): name the files.
+    let named = || {
+        args.sessions
+            .iter()
+            .map(|p| p.display().to_string())
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    let set = examples(&sessions, &cfg)
+        .with_context(|| format!("train: building examples from {}", named()))?;
     stage.set_message("train: fitting the tile head");
     let mut t_features = t1.elapsed();
     let t2 = Instant::now();
@@ -195,8 +204,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if let Some(region_cfg) = cfg.region_config() {
         let t3 = Instant::now();
         stage.set_message("train: the region head");
-        let region_set = examples(&sessions, &region_cfg)
-            .context("train: building the region head's examples")?;
+        let region_set = examples(&sessions, &region_cfg).with_context(|| {
+            format!(
+                "train: building the region head's examples from {}",
+                named()
+            )
+        })?;
         t_features += t3.elapsed();
         let t4 = Instant::now();
         let region = fit_model(&sessions, &region_set, &region_cfg)
