@@ -69,25 +69,13 @@ impl SessionData {
     /// The camera mount (base_from_camera) at `stamp_ns`: the chain from the odometry's
     /// child frame to the camera's frame (see [`TfTree`]), or why there is none.
     pub fn mount_at(&self, stamp_ns: i64) -> Result<Iso3, TfError> {
-        let cam = &self.camera_frame_id;
-        // Older bags name another parent than the odometry's child: a lone transform to the
-        // camera still is its mount. A longer chain that misses the base is not (a head's
-        // joint missing from /tf must not pass for a fixed mount).
-        let lone_edge = self
-            .tf
-            .parent(cam)
-            .is_some_and(|p| self.tf.parent(p).is_none());
-        let chained = match &self.base_frame_id {
-            Some(b) => self.tf.lookup(Some(b), cam, stamp_ns).or_else(|e| {
-                if lone_edge {
-                    self.tf.lookup(None, cam, stamp_ns)
-                } else {
-                    Err(e)
-                }
-            }),
-            None => self.tf.lookup(None, cam, stamp_ns),
-        };
-        chained.or_else(|e| self.lone_mount.ok_or(e))
+        self.tf
+            .mount(
+                self.base_frame_id.as_deref(),
+                &self.camera_frame_id,
+                stamp_ns,
+            )
+            .or_else(|e| self.lone_mount.ok_or(e))
     }
 
     /// Pose of base_link in odom at `stamp_ns`, interpolated; `None` when the odometry does
@@ -252,11 +240,7 @@ impl Collected {
         let t = &self.transforms;
         let lone = (t.len() == 1 && self.dynamic.is_empty()).then(|| t[0].2);
         let base = self.base_frame_id.as_deref();
-        let lone_edge = tree
-            .parent(camera_frame_id)
-            .is_some_and(|p| tree.parent(p).is_none());
-        let found = tree.lookup(base, camera_frame_id, first_stamp_ns).is_ok()
-            || (lone_edge && tree.lookup(None, camera_frame_id, first_stamp_ns).is_ok());
+        let found = tree.mount(base, camera_frame_id, first_stamp_ns).is_ok();
         if found || lone.is_some() || tree.is_dynamic() {
             return Ok((tree, lone));
         }

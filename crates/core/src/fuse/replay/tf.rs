@@ -114,6 +114,23 @@ impl TfTree {
         })
     }
 
+    /// The camera mount `base_from_camera` at `stamp_ns`: the chain up to `base`; failing
+    /// that, a lone transform to the camera whatever its parent (older bags name another
+    /// parent than the odometry's child). A longer chain that misses the base is not a mount:
+    /// a head's joint missing from /tf must not pass for a fixed mount.
+    pub fn mount(&self, base: Option<&str>, camera: &str, stamp_ns: i64) -> Result<Iso3, TfError> {
+        self.lookup(base, camera, stamp_ns).or_else(|e| {
+            let lone_edge = self
+                .parent(camera)
+                .is_some_and(|p| self.parent(p).is_none());
+            if base.is_some() && lone_edge {
+                self.lookup(None, camera, stamp_ns)
+            } else {
+                Err(e)
+            }
+        })
+    }
+
     /// `base_from_frame` at `stamp_ns`: the chain up from `frame` to `base` (or to the root
     /// of its tree when `base` is None), or why not.
     pub fn lookup(&self, base: Option<&str>, frame: &str, stamp_ns: i64) -> Result<Iso3, TfError> {

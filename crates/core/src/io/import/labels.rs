@@ -9,7 +9,7 @@
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-use super::ImportError;
+use super::{ImportError, line_error};
 use crate::io::capture::CaptureError;
 use crate::io::msgs::RegionOfInterest;
 
@@ -41,13 +41,7 @@ pub fn parse_labels(path: &Path, text: &str) -> Result<Labels, ImportError> {
         {
             continue;
         }
-        let err = |what: String| {
-            ImportError::File(CaptureError::Line {
-                path: path.into(),
-                line,
-                what,
-            })
-        };
+        let err = |what: String| line_error(path, line, what);
         let fields: Vec<&str> = content.split(',').map(str::trim).collect();
         if fields.len() != 5 && fields.len() != 6 {
             return Err(err(format!(

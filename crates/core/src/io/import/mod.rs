@@ -346,6 +346,15 @@ fn images_place(poses: &PoseFile) -> &Path {
     }
 }
 
+/// The error of line `line` (1-based) of a text input.
+fn line_error(path: &Path, line: usize, what: String) -> ImportError {
+    ImportError::File(CaptureError::Line {
+        path: path.into(),
+        line,
+        what,
+    })
+}
+
 /// File name of `p` as text (lossy), or empty.
 fn name_of(p: &Path) -> String {
     p.file_name()

@@ -7,7 +7,7 @@
 
 use std::path::{Path, PathBuf};
 
-use super::{Frame, ImportError, list_images};
+use super::{Frame, ImportError, line_error, list_images};
 use crate::io::capture::CaptureError;
 use crate::io::capture::Intrinsics;
 use crate::types::geometry::{Iso3, iso_from_parts};
@@ -90,13 +90,7 @@ pub fn parse_trajectory(path: &Path, text: &str) -> Result<Vec<TrajectoryPose>, 
         if content.is_empty() {
             continue;
         }
-        let err = |what: String| {
-            ImportError::File(CaptureError::Line {
-                path: path.into(),
-                line,
-                what,
-            })
-        };
+        let err = |what: String| line_error(path, line, what);
         let fields: Vec<&str> = content.split_whitespace().collect();
         if fields.len() != 8 {
             return Err(err(format!(
