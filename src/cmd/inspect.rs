@@ -1,4 +1,6 @@
-//! `objloc inspect SESSION [--json]`: summary of a session or any ROS 2 MCAP.
+//! `objloc inspect SESSION [--json] [--quick]`: summary of a session or any ROS 2 MCAP; the
+//! full check decodes every message (in bounded memory), `--quick` reads only the summary
+//! section and says so.
 
 use std::path::PathBuf;
 
@@ -13,22 +15,40 @@ pub struct Args {
     /// Print the summary as JSON instead of text.
     #[arg(long)]
     json: bool,
+    /// Read only the file's summary section (channels, message counts, time range, chunk
+    /// count): instant on any size, but nothing is decoded or checked. Without a summary
+    /// section (or with a truncated file) the full check runs, and the output says so.
+    #[arg(long)]
+    quick: bool,
     #[command(flatten)]
     topics: TopicArgs,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
-    let summary = objloc_core::io::inspect::summarize(&args.session, args.topics.topics()?)
-        .context("inspect")?;
-    if args.json {
-        println!("{}", serde_json::to_string_pretty(&summary)?);
+    let topics = args.topics.topics()?;
+    let (text, json, warnings) = if args.quick {
+        let q =
+            objloc_core::io::inspect::summarize_quick(&args.session, topics).context("inspect")?;
+        (
+            q.to_text(),
+            serde_json::to_string_pretty(&q)?,
+            q.warnings().to_vec(),
+        )
     } else {
-        print!("{}", summary.to_text());
-    }
-    for w in &summary.warnings {
-        if args.json {
+        let s = objloc_core::io::inspect::summarize(&args.session, topics).context("inspect")?;
+        (
+            s.to_text(),
+            serde_json::to_string_pretty(&s)?,
+            s.warnings.clone(),
+        )
+    };
+    if args.json {
+        println!("{json}");
+        for w in &warnings {
             eprintln!("warning: {w}");
         }
+    } else {
+        print!("{text}");
     }
     Ok(())
 }

@@ -212,6 +212,47 @@ fn train_sessions_have_three_views_and_eighteen_backgrounds() {
 }
 
 #[test]
+fn inspect_quick_reads_the_summary_section_of_a_shipped_recording() {
+    let tour = "recordings/chair-tour.mcap";
+    let quick: serde_json::Value =
+        serde_json::from_str(&ok(&objloc(&["inspect", "--quick", "--json", tour], &[]))).unwrap();
+    let full: serde_json::Value =
+        serde_json::from_str(&ok(&objloc(&["inspect", "--json", tour], &[]))).unwrap();
+    assert_eq!(quick["read"], "summary_only");
+    assert_eq!(quick["messages"], 2032);
+    assert_eq!(quick["messages"], full["messages"]);
+    assert_eq!(quick["frames"], 8);
+    assert_eq!(quick["chunks"], 6);
+    assert_eq!(quick["start_ns"], full["start_ns"]);
+    assert_eq!(quick["end_ns"], full["end_ns"]);
+    let counts = |j: &serde_json::Value| -> Vec<(String, u64)> {
+        j["topics"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|t| {
+                (
+                    t["topic"].as_str().unwrap().to_owned(),
+                    t["count"].as_u64().unwrap(),
+                )
+            })
+            .collect()
+    };
+    assert_eq!(counts(&quick), counts(&full));
+    let text = ok(&objloc(&["inspect", "--quick", tour], &[]));
+    assert!(text.contains("messages:   2032 "), "{text}");
+    assert!(text.contains("read the summary section only"), "{text}");
+    // A truncated copy has no footer: the full check runs, and says so.
+    let dir = tempfile::tempdir().unwrap();
+    let cut = dir.path().join("cut.mcap");
+    let bytes = std::fs::read(repo_dir().join(tour)).unwrap();
+    std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
+    let text = ok(&objloc(&["inspect", "--quick", p(&cut)], &[]));
+    assert!(text.starts_with("no usable summary section"), "{text}");
+    assert!(text.contains("warning: file is truncated"), "{text}");
+}
+
+#[test]
 fn killed_recording_leaves_a_readable_partial_and_no_final_file() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("long.mcap");

@@ -1053,7 +1053,7 @@ fn corpora() -> &'static [Corpus] {
             assert!(chunks.len() >= 4, "{name}: {} chunks", chunks.len());
             let reader = SessionReader::from_bytes(Path::new(name), &bytes, Topics::default())
                 .expect("corpus reads");
-            assert_eq!(reader.raw_messages().len(), msgs.len());
+            assert_eq!(reader.index().len(), msgs.len());
             Corpus {
                 name,
                 bytes,
@@ -1065,7 +1065,7 @@ fn corpora() -> &'static [Corpus] {
     })
 }
 
-fn decoded(reader: &SessionReader, raw: &objloc_core::io::session::RawMessage) -> String {
+fn decoded(reader: &SessionReader, raw: &objloc_core::io::session::MessageMeta) -> String {
     format!("{:?}", reader.decode(raw).map_err(|e| e.to_string()))
 }
 
@@ -1104,8 +1104,8 @@ fn check_chunk_mutation(
         reader.warnings
     );
     let orig = &corpus.reader;
-    let got = reader.raw_messages();
-    for m in orig.raw_messages() {
+    let got = reader.index();
+    for m in orig.index() {
         if (t0..=t1).contains(&m.log_time_ns) {
             continue; // may have come from the damaged chunk
         }
@@ -1114,7 +1114,10 @@ fn check_chunk_mutation(
         let same = got[i..]
             .iter()
             .take_while(|g| (g.log_time_ns, g.channel_id, g.sequence) == key)
-            .find(|g| g.data == m.data && g.publish_time_ns == m.publish_time_ns);
+            .find(|g| {
+                g.publish_time_ns == m.publish_time_ns
+                    && matches!((reader.payload(g), orig.payload(m)), (Ok(a), Ok(b)) if a == b)
+            });
         let Some(same) = same else {
             return Err(TestCaseError::fail(format!(
                 "{}: message {key:?} of an undamaged chunk is lost or altered",

@@ -3,10 +3,13 @@
 //! Invariants: works on any ROS 2 MCAP, session or not: topics without a session role are
 //! counted, not decoded; missing session topics are listed, not fatal; damage that leaves the
 //! rest readable (a truncated tail) is a warning with how much was read; every frame of a
-//! session topic is decoded, and the first that does not decode is an error.
+//! session topic is decoded, and the first that does not decode is an error. Memory does not
+//! grow with the payloads: messages are decoded one at a time and frames checked in batches
+//! of [`DECODE_BATCH`]. `--quick` ([`summarize_quick`]) reads only the summary section.
 //!
-//! Layout: one scan decodes the session-role messages, then each warning has its own check
-//! over what the scan found, applied in a fixed order (so the warnings print in that order).
+//! Layout: one scan decodes the session-role messages, then the frames are decoded again
+//! for the pixel check, then each warning has its own check over what the scan found,
+//! applied in a fixed order (so the warnings print in that order).
 
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -14,7 +17,7 @@ use std::path::Path;
 use rayon::prelude::*;
 use serde::Serialize;
 
-use crate::io::session::{Frame, Role, SessionError, SessionMsg, SessionReader, Topics, fmt_ns};
+use crate::io::session::{Role, SessionError, SessionMsg, SessionReader, Topics, fmt_ns};
 use crate::types::geometry::Camera;
 
 /// One channel of the file, as `objloc inspect` lists it.
@@ -44,7 +47,7 @@ pub struct ImageSummary {
     pub width: u32,
     /// Frame height, pixels.
     pub height: u32,
-    /// Format in words, e.g. `png` or `raw rgb8` (see [`Frame::encoding`]).
+    /// Format in words, e.g. `png` or `raw rgb8` (see [`crate::io::session::Frame::encoding`]).
     pub encoding: String,
 }
 
@@ -104,12 +107,12 @@ pub fn summarize(path: &Path, topics: Topics) -> Result<Summary, SessionError> {
 /// wrong with it.
 pub fn summarize_reader(reader: &SessionReader) -> Result<Summary, SessionError> {
     let topics = reader.topics();
-    let raw = reader.raw_messages();
+    let raw = reader.index();
     let mut warnings = reader.warnings.clone();
     warnings.extend(backwards_warnings(reader));
     let mut scan = scan(reader)?;
     warnings.append(&mut scan.warnings);
-    check_frames_decode(reader, std::mem::take(&mut scan.frames))?;
+    check_frames_decode(reader, &scan.frames)?;
     warnings.extend(size_mismatch_warning(&scan));
     warnings.extend(unposed_warning(&scan, topics));
     warnings.extend(orphan_label_warning(&scan));
@@ -142,7 +145,7 @@ pub fn summarize_reader(reader: &SessionReader) -> Result<Summary, SessionError>
         frames: scan.frame_stamps.len(),
         labelled_frames: scan.labels.iter().filter(|l| l.labelled).count(),
         background_frames: scan.labels.iter().filter(|l| !l.labelled).count(),
-        missing_topics: missing_topics(reader, !scan.frame_stamps.is_empty()),
+        missing_topics: missing_topics(topics, |t| reader.count(t), !scan.frame_stamps.is_empty()),
         image: scan.image,
         intrinsics: scan.intrinsics,
         objects_labelled,
@@ -156,7 +159,7 @@ pub fn summarize_reader(reader: &SessionReader) -> Result<Summary, SessionError>
 fn topic_rows(reader: &SessionReader) -> Vec<TopicSummary> {
     let topics = reader.topics();
     let mut per_channel: BTreeMap<u16, (usize, Option<u64>, Option<u64>)> = BTreeMap::new();
-    for m in reader.raw_messages() {
+    for m in reader.index() {
         let e = per_channel.entry(m.channel_id).or_insert((0, None, None));
         e.0 += 1;
         e.1 = Some(e.1.map_or(m.log_time_ns, |t: u64| t.min(m.log_time_ns)));
@@ -219,8 +222,8 @@ struct Scan {
     /// Ground-truth object names, in first-appearance order.
     gt_objects: Vec<String>,
     gt_present: bool,
-    /// (topic, log time, frame) of every frame, for the decode check.
-    frames: Vec<(String, u64, Frame)>,
+    /// Index (into [`SessionReader::index`]) of every frame, for the decode check.
+    frames: Vec<usize>,
     /// Warnings about single messages, in replay order.
     warnings: Vec<String>,
 }
@@ -229,8 +232,10 @@ struct Scan {
 /// decode (frames: only their size is read here).
 fn scan(reader: &SessionReader) -> Result<Scan, SessionError> {
     let mut s = Scan::default();
-    for msg in reader.messages() {
-        let m = msg?;
+    for (i, meta) in reader.index().iter().enumerate() {
+        let Some(m) = reader.decode(meta)? else {
+            continue;
+        };
         match m.msg {
             SessionMsg::Frame(f) => {
                 if s.image.is_none() {
@@ -245,7 +250,7 @@ fn scan(reader: &SessionReader) -> Result<Scan, SessionError> {
                     });
                 }
                 s.frame_stamps.push((f.stamp_ns, m.log_time_ns));
-                s.frames.push((m.topic, m.log_time_ns, f));
+                s.frames.push(i);
             }
             SessionMsg::CameraInfo(ci) => {
                 s.info_size = Some((ci.width, ci.height));
@@ -283,26 +288,36 @@ fn scan(reader: &SessionReader) -> Result<Scan, SessionError> {
     Ok(s)
 }
 
-/// Fails on the first frame, in replay order, whose image does not decode.
-fn check_frames_decode(
-    reader: &SessionReader,
-    frames: Vec<(String, u64, Frame)>,
-) -> Result<(), SessionError> {
+/// Frames decoded at once by the pixel check: enough to keep every core busy, few enough
+/// that memory stays flat whatever the session's length.
+pub const DECODE_BATCH: usize = 64;
+
+/// Fails on the first frame, in replay order, whose image does not decode; `frames` are
+/// indexes into [`SessionReader::index`].
+fn check_frames_decode(reader: &SessionReader, frames: &[usize]) -> Result<(), SessionError> {
     // Every frame must decode: one corrupt PNG would otherwise surface only deep inside train
-    // or fuse. The first failure in replay order is reported, whatever the thread count.
-    let failures: Vec<Option<String>> = frames
-        .par_iter()
-        .map(|(_, _, f)| f.decode_rgb8().err().map(|e| e.to_string()))
-        .collect();
-    if let Some(((topic, log_time_ns, _), what)) = frames
-        .iter()
-        .zip(failures)
-        .find_map(|(frame, e)| e.map(|e| (frame, e)))
-    {
-        return Err(SessionError::Invalid {
-            at: reader.at(Some(topic), *log_time_ns),
-            what,
-        });
+    // or fuse. Batches run in order and each keeps its results in order, so the first failure
+    // in replay order is reported, whatever the thread count.
+    for batch in frames.chunks(DECODE_BATCH) {
+        let failures: Vec<Result<(), SessionError>> =
+            batch.par_iter().map(|&i| check_frame(reader, i)).collect();
+        if let Some(e) = failures.into_iter().find_map(Result::err) {
+            return Err(e);
+        }
+    }
+    Ok(())
+}
+
+/// Loads the frame at index `i` of the reader's index and decodes its image (then drops it).
+fn check_frame(reader: &SessionReader, i: usize) -> Result<(), SessionError> {
+    let Some(m) = reader.decode_at(i)? else {
+        return Ok(());
+    };
+    if let SessionMsg::Frame(f) = m.msg {
+        f.decode_rgb8().map_err(|e| SessionError::Invalid {
+            at: reader.at(Some(&m.topic), m.log_time_ns),
+            what: e.to_string(),
+        })?;
     }
     Ok(())
 }
@@ -353,12 +368,11 @@ fn orphan_label_warning(scan: &Scan) -> Option<String> {
 
 /// Session topics (by role) with no message; the two image roles count as one, and /tf is
 /// not missed (only a moving camera mount needs it, and /tf_static names the mount).
-fn missing_topics(reader: &SessionReader, has_frames: bool) -> Vec<String> {
-    let topics = reader.topics();
+fn missing_topics(topics: &Topics, count: impl Fn(&str) -> usize, has_frames: bool) -> Vec<String> {
     Role::ALL
         .into_iter()
         .filter(|r| !matches!(r, Role::Image | Role::CompressedImage | Role::Tf))
-        .filter(|r| reader.count(topics.get(*r)) == 0)
+        .filter(|r| count(topics.get(*r)) == 0)
         .map(|r| topics.get(r).to_owned())
         .chain((!has_frames).then(|| format!("{} (or {})", topics.compressed_image, topics.image)))
         .collect()
@@ -388,28 +402,7 @@ impl Summary {
             self.end_ns.map(fmt_ns).unwrap_or_else(|| "-".into()),
             self.duration_s
         );
-        let _ = writeln!(s, "topics:");
-        let w = self.topics.iter().map(|t| t.topic.len()).max().unwrap_or(5);
-        let tw = self
-            .topics
-            .iter()
-            .map(|t| t.type_name.len())
-            .max()
-            .unwrap_or(4);
-        for t in &self.topics {
-            let _ = writeln!(
-                s,
-                "  {:<w$}  {:<tw$}  {:>6}  {}{}",
-                t.topic,
-                t.type_name,
-                t.count,
-                t.message_encoding,
-                t.role
-                    .as_ref()
-                    .map(|r| format!("  [{r}]"))
-                    .unwrap_or_default(),
-            );
-        }
+        s.push_str(&topic_table(&self.topics));
         let _ = writeln!(s, "frames:     {}", self.frames);
         if let Some(i) = &self.image {
             let _ = writeln!(s, "image:      {} x {} {}", i.width, i.height, i.encoding);
@@ -456,5 +449,207 @@ impl Summary {
             let _ = writeln!(s, "warning: {w}");
         }
         s
+    }
+}
+
+/// The topic rows as `objloc inspect` prints them: topic, type, count, encoding and role.
+fn topic_table(rows: &[TopicSummary]) -> String {
+    use std::fmt::Write;
+    let mut s = String::from("topics:\n");
+    let w = rows.iter().map(|t| t.topic.len()).max().unwrap_or(5);
+    let tw = rows.iter().map(|t| t.type_name.len()).max().unwrap_or(4);
+    for t in rows {
+        let _ = writeln!(
+            s,
+            "  {:<w$}  {:<tw$}  {:>6}  {}{}",
+            t.topic,
+            t.type_name,
+            t.count,
+            t.message_encoding,
+            t.role
+                .as_ref()
+                .map(|r| format!("  [{r}]"))
+                .unwrap_or_default(),
+        );
+    }
+    s
+}
+
+/// What the summary section of a file says, as `objloc inspect --quick` reports it: no
+/// message is read, so nothing is decoded or checked.
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct SectionSummary {
+    /// The file, as given.
+    pub path: String,
+    /// MCAP header profile, e.g. `ros2`; empty if the file declares none.
+    pub profile: String,
+    /// MCAP header library: what wrote the file.
+    pub library: String,
+    /// Size of the file, bytes.
+    pub file_bytes: u64,
+    /// Messages in the file, on every topic (the Statistics record).
+    pub messages: u64,
+    /// Earliest log time, ns since the Unix epoch; `None` without messages.
+    pub start_ns: Option<u64>,
+    /// Latest log time, ns since the Unix epoch; `None` without messages.
+    pub end_ns: Option<u64>,
+    /// `end_ns - start_ns`, seconds; 0 without messages.
+    pub duration_s: f64,
+    /// One row per channel, sorted by topic (first and last log times are not in the
+    /// summary: `null`).
+    pub topics: Vec<TopicSummary>,
+    /// Messages on the two image topics.
+    pub frames: u64,
+    /// Chunks in the file.
+    pub chunks: u32,
+    /// Session topics (by role) with no message in this file.
+    pub missing_topics: Vec<String>,
+}
+
+/// What `objloc inspect --quick` found: the summary section, or (without a usable one) the
+/// full check. Serialised with `"read": "summary_only"` or `"read": "full_scan"`.
+#[derive(Debug, Clone, Serialize, PartialEq)]
+#[serde(tag = "read", rename_all = "snake_case")]
+pub enum QuickSummary {
+    /// Read from the summary section only.
+    SummaryOnly(SectionSummary),
+    /// The file has no usable summary section (none, no Statistics, or truncated): the whole
+    /// file was read and checked, as without `--quick`.
+    FullScan {
+        /// Why the summary section was not used, in words.
+        why: String,
+        /// The full check's summary.
+        #[serde(flatten)]
+        summary: Summary,
+    },
+}
+
+/// Summarises `path` from its summary section when it has a usable one, else by the full
+/// check ([`summarize`]).
+pub fn summarize_quick(path: &Path, topics: Topics) -> Result<QuickSummary, SessionError> {
+    let why = match crate::io::session::read_summary_section(path) {
+        Ok(Some(section)) => {
+            return Ok(QuickSummary::SummaryOnly(section_summary(
+                path, &topics, section,
+            )));
+        }
+        Ok(None) => "the file has no summary section with statistics".to_owned(),
+        Err(e) => format!("the summary section does not read: {e}"),
+    };
+    Ok(QuickSummary::FullScan {
+        why,
+        summary: summarize(path, topics)?,
+    })
+}
+
+/// The report of a summary section.
+fn section_summary(
+    path: &Path,
+    topics: &Topics,
+    section: crate::io::session::SummarySection,
+) -> SectionSummary {
+    let count_of = |id: u16| {
+        section
+            .channel_message_counts
+            .get(&id)
+            .copied()
+            .unwrap_or(0)
+    };
+    let topic_count = |topic: &str| -> u64 {
+        section
+            .channels
+            .values()
+            .filter(|c| c.topic == topic)
+            .map(|c| count_of(c.id))
+            .sum()
+    };
+    let mut rows: Vec<TopicSummary> = section
+        .channels
+        .values()
+        .map(|c| TopicSummary {
+            topic: c.topic.clone(),
+            type_name: c.schema_name.clone(),
+            message_encoding: c.message_encoding.clone(),
+            count: usize::try_from(count_of(c.id)).unwrap_or(usize::MAX),
+            role: topics.role_of(&c.topic).map(|r| r.key().to_owned()),
+            first_log_time_ns: None,
+            last_log_time_ns: None,
+        })
+        .collect();
+    rows.sort_by(|a, b| a.topic.cmp(&b.topic));
+    let frames = topic_count(&topics.compressed_image) + topic_count(&topics.image);
+    let (start_ns, end_ns) = section.time_range_ns.unzip();
+    SectionSummary {
+        path: path.display().to_string(),
+        profile: section.profile.clone(),
+        library: section.library.clone(),
+        file_bytes: section.file_len,
+        messages: section.message_count,
+        start_ns,
+        end_ns,
+        duration_s: section
+            .time_range_ns
+            .map_or(0.0, |(a, b)| b.saturating_sub(a) as f64 * 1e-9),
+        topics: rows,
+        frames,
+        chunks: section.chunk_count,
+        missing_topics: missing_topics(
+            topics,
+            |t| usize::try_from(topic_count(t)).unwrap_or(usize::MAX),
+            frames > 0,
+        ),
+    }
+}
+
+/// The note `inspect --quick` ends its summary-only report with.
+pub const SUMMARY_ONLY_NOTE: &str = "read the summary section only (no message decoded or checked; `objloc inspect` without --quick reads and checks every message)";
+
+impl QuickSummary {
+    /// Human-readable report, as `objloc inspect --quick` prints it.
+    pub fn to_text(&self) -> String {
+        use std::fmt::Write;
+        let mut s = String::new();
+        match self {
+            QuickSummary::FullScan { why, summary } => {
+                let _ = writeln!(
+                    s,
+                    "no usable summary section ({why}): read the whole file instead"
+                );
+                s.push_str(&summary.to_text());
+            }
+            QuickSummary::SummaryOnly(q) => {
+                let _ = writeln!(s, "file:       {} ({} bytes)", q.path, q.file_bytes);
+                let profile = if q.profile.is_empty() {
+                    "(none)"
+                } else {
+                    &q.profile
+                };
+                let _ = writeln!(s, "profile:    {profile}    library: {}", q.library);
+                let _ = writeln!(
+                    s,
+                    "messages:   {}    start {}    end {}    duration {:.3} s",
+                    q.messages,
+                    q.start_ns.map(fmt_ns).unwrap_or_else(|| "-".into()),
+                    q.end_ns.map(fmt_ns).unwrap_or_else(|| "-".into()),
+                    q.duration_s
+                );
+                s.push_str(&topic_table(&q.topics));
+                let _ = writeln!(s, "frames:     {}", q.frames);
+                let _ = writeln!(s, "chunks:     {}", q.chunks);
+                if !q.missing_topics.is_empty() {
+                    let _ = writeln!(s, "missing session topics: {}", q.missing_topics.join(", "));
+                }
+                let _ = writeln!(s, "{SUMMARY_ONLY_NOTE}");
+            }
+        }
+        s
+    }
+
+    /// Warnings of the full check (none when the summary section was read).
+    pub fn warnings(&self) -> &[String] {
+        match self {
+            QuickSummary::FullScan { summary, .. } => &summary.warnings,
+            QuickSummary::SummaryOnly(_) => &[],
+        }
     }
 }

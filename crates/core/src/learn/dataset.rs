@@ -18,7 +18,7 @@ use rayon::prelude::*;
 use thiserror::Error;
 
 use crate::io::msgs::RegionOfInterest;
-use crate::io::session::{At, Frame, SessionError, SessionMsg, SessionReader, Topics};
+use crate::io::session::{At, SessionError, SessionMsg, SessionReader, Topics};
 use crate::learn::features::{
     FeatureKind, TileFeature, bin_image, feature_count, histograms_of_bins, with_context,
 };
@@ -107,20 +107,19 @@ pub fn load_session(
     object: Option<&str>,
     labelled_only: bool,
 ) -> Result<LoadedSession, DatasetError> {
-    let bytes = std::fs::read(path).map_err(|source| SessionError::Io {
-        path: path.to_owned(),
-        source,
-    })?;
-    let sha256 = crate::types::digest::sha256_hex(&bytes);
-    let reader = SessionReader::from_bytes(path, &bytes, topics)?;
-    drop(bytes);
+    let sha256 = file_sha256(path)?;
+    let reader = SessionReader::open(path, topics)?;
     reader.require_frames()?;
-    let mut frames: Vec<(u64, String, Frame)> = Vec::new();
+    // Frames are kept as indexes into the reader and decoded once selected: the encoded
+    // frames of a long session are never all in memory at once.
+    let mut frames: Vec<(usize, u64, String, i64)> = Vec::new();
     let mut labels: BTreeMap<i64, Vec<RegionOfInterest>> = BTreeMap::new();
-    for m in reader.messages() {
-        let m = m?;
+    for (i, meta) in reader.index().iter().enumerate() {
+        let Some(m) = reader.decode(meta)? else {
+            continue;
+        };
         match m.msg {
-            SessionMsg::Frame(f) => frames.push((m.log_time_ns, m.topic, f)),
+            SessionMsg::Frame(f) => frames.push((i, m.log_time_ns, m.topic, f.stamp_ns)),
             // Several labels for one frame (several objects, or a background label next to
             // an object label) add up their rectangles.
             SessionMsg::Label(l)
@@ -136,21 +135,31 @@ pub fn load_session(
     }
     let selected: Vec<_> = frames
         .into_iter()
-        .filter_map(|(t, topic, f)| {
-            let regions = labels.get(&f.stamp_ns).cloned();
-            (!labelled_only || regions.is_some()).then_some((t, topic, f, regions))
+        .filter_map(|(i, t, topic, stamp_ns)| {
+            let regions = labels.get(&stamp_ns).cloned();
+            (!labelled_only || regions.is_some()).then_some((i, t, topic, stamp_ns, regions))
         })
         .collect();
     // Decoding dominates loading; rayon's collect keeps session order.
     let frames = selected
         .into_par_iter()
-        .map(|(log_time_ns, topic, f, regions)| {
-            let image = f.decode_rgb8().map_err(|source| DatasetError::Frame {
+        .map(|(i, log_time_ns, topic, stamp_ns, regions)| {
+            let frame = match reader.decode_at(i)?.map(|m| m.msg) {
+                Some(SessionMsg::Frame(f)) => f,
+                _ => {
+                    return Err(SessionError::Invalid {
+                        at: reader.at(Some(&topic), log_time_ns),
+                        what: "not a frame any more (the file changed while it was read?)".into(),
+                    }
+                    .into());
+                }
+            };
+            let image = frame.decode_rgb8().map_err(|source| DatasetError::Frame {
                 at: reader.at(Some(&topic), log_time_ns),
                 source,
             })?;
             Ok(SessionFrame {
-                stamp_ns: f.stamp_ns,
+                stamp_ns,
                 log_time_ns,
                 image,
                 regions,
@@ -162,6 +171,29 @@ pub fn load_session(
         sha256,
         frames,
     })
+}
+
+/// Hex SHA-256 of the file at `path`, read in blocks (the file is never all in memory).
+fn file_sha256(path: &Path) -> Result<String, SessionError> {
+    use sha2::{Digest, Sha256};
+    use std::io::Read;
+    let io = |source| SessionError::Io {
+        path: path.to_owned(),
+        source,
+    };
+    let mut file = std::fs::File::open(path).map_err(io)?;
+    let mut hasher = Sha256::new();
+    let mut block = vec![0u8; 1 << 20];
+    loop {
+        let n = match file.read(&mut block) {
+            Ok(0) => break,
+            Ok(n) => n,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
+            Err(e) => return Err(io(e)),
+        };
+        hasher.update(&block[..n]);
+    }
+    Ok(crate::types::digest::hex(&hasher.finalize()))
 }
 
 /// Whether the tile at pixel (x, y) with side `tile_px` lies fully inside one rectangle.

@@ -248,7 +248,7 @@ pub(super) fn decode_frame(
     fr: &FrameRef,
 ) -> Result<Rgb8, ReplayError> {
     let at = || reader.at(Some(&fr.topic), fr.log_time_ns);
-    let raw = &reader.raw_messages()[fr.raw_index];
+    let raw = &reader.index()[fr.raw_index];
     let frame = match reader.decode(raw)?.map(|m| m.msg) {
         Some(SessionMsg::Frame(f)) => f,
         _ => {

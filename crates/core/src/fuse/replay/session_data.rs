@@ -317,7 +317,10 @@ pub fn load_session(reader: &SessionReader) -> Result<SessionData, ReplayError> 
         warnings: reader.warnings.clone(),
         ..Collected::default()
     };
-    for (raw_index, raw) in reader.raw_messages().iter().enumerate() {
+    // Messages are decoded one at a time from the reader's chunk cache: a frame's payload is
+    // decoded here only for its header (stamp) and CDR check and dropped at once; its pixels
+    // are decoded in pass 2, by index.
+    for (raw_index, raw) in reader.index().iter().enumerate() {
         let Some(m) = reader.decode(raw)? else {
             continue;
         };

@@ -1,13 +1,16 @@
 //! Sessions: ROS 2 MCAP files <-> typed messages. The only module that touches MCAP.
 //!
 //! Invariants: messages come out in (log_time, channel id, sequence) order whatever order the
-//! file holds them in; a truncated file yields every message before the damage plus a warning
-//! (like `mcap recover`); every error names the file, and where known the topic and log time.
+//! file holds them in; a truncated file yields every message of the whole chunks before the
+//! damage plus a warning (like `mcap recover`); every error names the file, and where known the
+//! topic and log time. Reading holds an index and a few decompressed chunks, not the file.
 
 mod reader;
 mod writer;
 
-pub use reader::{ChannelInfo, RawMessage, SessionReader};
+pub use reader::{
+    ChannelInfo, MessageMeta, PayloadAt, SessionReader, SummarySection, read_summary_section,
+};
 pub use writer::SessionWriter;
 
 use std::fmt;

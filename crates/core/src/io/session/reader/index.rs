@@ -1,0 +1,421 @@
+//! The index pass: one linear read of the file that keeps, per message, its header and where
+//! its payload is, and per chunk its byte range; channels and schemas are taken as met.
+//!
+//! Invariants: the outer MCAP reader hands out whole top-level records (chunks undecoded) and
+//! requests exactly the bytes it needs, so the bytes fed to it when it yields a record end that
+//! record: the record starts `9 + body length` bytes earlier. Each chunk is opened by a second
+//! reader with its CRC checked before any of its records is yielded (mcap's decompression
+//! and checks, nothing of ours). A chunk enters the index whole or not at all: when the file
+//! runs out inside one, its messages are dropped with the truncation warning, so every indexed
+//! payload can be read again. Errors keep the wording of the reader that held every payload.
+
+use std::collections::BTreeMap;
+use std::io::Read;
+
+use mcap::McapError;
+use mcap::records::{Record, op};
+use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
+
+use super::super::{At, SessionError};
+use super::{
+    ByteSpan, ChannelInfo, MessageMeta, RECORD_LENGTH_LIMIT, Segment, SessionReader, read_full,
+};
+
+/// MCAP records start with an opcode (1 byte) and a 64-bit length (8 bytes).
+pub(super) const OPCODE_LEN_BYTES: u64 = 1 + 8;
+
+/// Largest read handed to the outer reader at once: its buffer grows by this much at most
+/// per read, whatever length a (possibly corrupt) record claims.
+const READ_BLOCK_BYTES: usize = 1 << 20;
+
+/// Schemas by id: (name, encoding, data).
+type Schemas = BTreeMap<u16, (String, String, Vec<u8>)>;
+
+/// What the scan carries from record to record.
+#[derive(Default)]
+struct ScanState {
+    schemas: Schemas,
+    /// Each channel's last log time in file order, for the backwards check.
+    last_time: BTreeMap<u16, u64>,
+    /// Bytes handed to the outer reader so far.
+    fed_bytes: u64,
+    /// Whether the file ends with the MCAP magic (written to the end: not truncated).
+    ends_with_magic: bool,
+}
+
+/// Whether a scan step lets the scan go on.
+enum Step {
+    Go,
+    /// The file is truncated; the warning is recorded.
+    Stop,
+}
+
+/// The reader of one chunk record's inner records: mcap decompresses it and checks its CRC
+/// before yielding any of them.
+pub(super) fn chunk_reader() -> LinearReader {
+    LinearReader::new_with_options(
+        LinearReaderOptions::default()
+            .with_skip_start_magic(true)
+            .with_skip_end_magic(true)
+            .with_prevalidate_chunk_crcs(true)
+            .with_record_length_limit(RECORD_LENGTH_LIMIT),
+    )
+}
+
+/// Serves `reader`'s request for `n` bytes from `parts` (read in order from `*cursor`);
+/// nothing left tells it the input has ended.
+pub(super) fn feed_parts(
+    reader: &mut LinearReader,
+    parts: [&[u8]; 2],
+    cursor: &mut usize,
+    n: usize,
+) {
+    let (first, second) = (parts[0], parts[1]);
+    let rest = if *cursor < first.len() {
+        &first[*cursor..]
+    } else {
+        &second[(*cursor - first.len()).min(second.len())..]
+    };
+    let n = n.min(rest.len());
+    reader.insert(n).copy_from_slice(&rest[..n]);
+    reader.notify_read(n);
+    *cursor += n;
+}
+
+/// The opcode and length that precede a chunk record's body of `body_len` bytes.
+pub(super) fn chunk_prefix(body_len: usize) -> [u8; 9] {
+    let mut prefix = [0u8; 9];
+    prefix[0] = op::CHUNK;
+    prefix[1..].copy_from_slice(&(body_len as u64).to_le_bytes());
+    prefix
+}
+
+impl SessionReader {
+    /// The last message indexed so far (file order), for errors about what follows it.
+    fn at_last(&self) -> At {
+        match self.messages.last() {
+            Some(m) => At {
+                topic: self.channels.get(&m.channel_id).map(|c| c.topic.clone()),
+                ..self.at(None, m.log_time_ns)
+            },
+            None => At {
+                path: self.path.clone(),
+                topic: None,
+                log_time_ns: None,
+            },
+        }
+    }
+
+    /// The one pass over `input`, the whole file from its first byte.
+    pub(super) fn scan(
+        &mut self,
+        input: &mut impl Read,
+        ends_with_magic: bool,
+    ) -> Result<(), SessionError> {
+        let opts = LinearReaderOptions::default()
+            .with_emit_chunks(true)
+            .with_record_length_limit(RECORD_LENGTH_LIMIT);
+        let mut reader = LinearReader::new_with_options(opts);
+        let mut st = ScanState {
+            ends_with_magic,
+            ..ScanState::default()
+        };
+        while let Some(event) = reader.next_event() {
+            let step = match event {
+                Ok(LinearReadEvent::ReadRequest(n)) => {
+                    let left = self.file_len.saturating_sub(st.fed_bytes);
+                    let n = n
+                        .min(READ_BLOCK_BYTES)
+                        .min(usize::try_from(left).unwrap_or(n));
+                    let got =
+                        read_full(input, reader.insert(n)).map_err(|source| SessionError::Io {
+                            path: self.path.clone(),
+                            source,
+                        })?;
+                    reader.notify_read(got);
+                    st.fed_bytes += got as u64;
+                    Step::Go
+                }
+                Ok(LinearReadEvent::Record { data, opcode }) => {
+                    // Saturating: a wrong offset is caught when the chunk is read again (its
+                    // opcode and length are checked there), never a panic here.
+                    let offset_bytes = st
+                        .fed_bytes
+                        .saturating_sub(OPCODE_LEN_BYTES + data.len() as u64);
+                    if opcode == op::CHUNK {
+                        self.take_chunk(data, offset_bytes, &mut st)?
+                    } else {
+                        let record = self.parse(opcode, data)?;
+                        self.take_top_level(record, offset_bytes, data.len(), &mut st)?;
+                        self.bytes_intact = st.fed_bytes;
+                        Step::Go
+                    }
+                }
+                Err(source) => {
+                    let ran_out = self.runs_out(&source, &st);
+                    self.failed(source, ran_out, &st)?
+                }
+            };
+            if let Step::Stop = step {
+                break;
+            }
+        }
+        if self.channels.is_empty() && self.messages.is_empty() && self.warnings.is_empty() {
+            self.warnings
+                .push("file holds no channels and no messages".to_owned());
+        }
+        Ok(())
+    }
+
+    /// One record's fields, or an error naming the last message before it.
+    fn parse<'a>(&self, opcode: u8, data: &'a [u8]) -> Result<Record<'a>, SessionError> {
+        mcap::parse_record(opcode, data).map_err(|source| SessionError::Mcap {
+            at: self.at_last(),
+            what: format!("record (opcode {opcode:#04x}) after this does not parse"),
+            source,
+        })
+    }
+
+    /// A record outside any chunk; a message's payload is located by its file offset.
+    fn take_top_level(
+        &mut self,
+        record: Record<'_>,
+        offset_bytes: u64,
+        body_len: usize,
+        st: &mut ScanState,
+    ) -> Result<(), SessionError> {
+        if let Record::Message { header, data } = &record {
+            // The payload is the tail of the record's body, after the message header.
+            let span = ByteSpan {
+                offset_bytes: offset_bytes + OPCODE_LEN_BYTES + (body_len - data.len()) as u64,
+                len_bytes: data.len() as u64,
+            };
+            let segment = self.next_segment()?;
+            self.take_message(header, segment, st)?;
+            self.segments.push(Segment::Payload(span));
+            return Ok(());
+        }
+        self.take_record(record, &mut st.schemas)
+    }
+
+    /// Indexes the chunk record with body `body` at `offset_bytes`, or, when it does not
+    /// read, errors or (in a truncated file) warns and stops.
+    fn take_chunk(
+        &mut self,
+        body: &[u8],
+        offset_bytes: u64,
+        st: &mut ScanState,
+    ) -> Result<Step, SessionError> {
+        let segment = self.next_segment()?;
+        let (kept_messages, kept_backwards) = (self.messages.len(), self.backwards.len());
+        let kept_bytes = self.bytes_intact;
+        let prefix = chunk_prefix(body.len());
+        let mut reader = chunk_reader();
+        let mut cursor = 0;
+        let mut ordinal = 0u32;
+        while let Some(event) = reader.next_event() {
+            match event {
+                Ok(LinearReadEvent::ReadRequest(n)) => {
+                    feed_parts(&mut reader, [&prefix, body], &mut cursor, n);
+                }
+                Ok(LinearReadEvent::Record { data, opcode }) => {
+                    match self.parse(opcode, data)? {
+                        Record::Message { header, .. } => {
+                            self.take_message(&header, segment | u64::from(ordinal), st)?;
+                            ordinal =
+                                ordinal
+                                    .checked_add(1)
+                                    .ok_or_else(|| SessionError::Invalid {
+                                        at: self.at_last(),
+                                        what: "a chunk holds more than 2^32 messages".into(),
+                                    })?;
+                        }
+                        other => self.take_record(other, &mut st.schemas)?,
+                    }
+                    self.bytes_intact = st.fed_bytes;
+                }
+                Err(source) => {
+                    let ran_out = Self::chunk_runs_out(&source);
+                    if ran_out && !st.ends_with_magic {
+                        // Only whole chunks are indexed, so every indexed payload reads again.
+                        self.messages.truncate(kept_messages);
+                        self.backwards.truncate(kept_backwards);
+                        self.bytes_intact = kept_bytes;
+                    }
+                    return self.failed(source, ran_out, st);
+                }
+            }
+        }
+        self.segments.push(Segment::Chunk(ByteSpan {
+            offset_bytes,
+            len_bytes: OPCODE_LEN_BYTES + body.len() as u64,
+        }));
+        self.chunk_count += 1;
+        Ok(Step::Go)
+    }
+
+    /// The `loc` of the next segment's first message (its number in the high 32 bits).
+    fn next_segment(&self) -> Result<u64, SessionError> {
+        let n = u32::try_from(self.segments.len()).map_err(|_| SessionError::Invalid {
+            at: self.at_last(),
+            what: "the file holds more than 2^32 chunks and unchunked messages".into(),
+        })?;
+        Ok(u64::from(n) << 32)
+    }
+
+    /// Whether the outer reader's error `e` means it ran out of data: `UnexpectedEof`, or a
+    /// chunk claiming more bytes than the file has left. A recorder killed mid-chunk leaves
+    /// such a chunk: mcap's writer puts a placeholder length (2^64 - 1) before the chunk's
+    /// data and fills it in when the chunk is complete.
+    fn runs_out(&self, e: &McapError, st: &ScanState) -> bool {
+        match e {
+            McapError::UnexpectedEof | McapError::UnexpectedEoc => true,
+            McapError::RecordTooLarge { opcode, len } => {
+                *opcode == op::CHUNK && *len > self.file_len.saturating_sub(st.fed_bytes)
+            }
+            _ => false,
+        }
+    }
+
+    /// Whether an error inside a chunk means the chunk ran out of data (`UnexpectedEof`, or
+    /// `UnexpectedEoc` when its compressed stream stops short).
+    fn chunk_runs_out(e: &McapError) -> bool {
+        matches!(e, McapError::UnexpectedEof | McapError::UnexpectedEoc)
+    }
+
+    /// The scan's reaction to a reader error: a warning and stop for truncation, else the
+    /// error naming the last message before the damage. Running out of data (`ran_out`) is
+    /// truncation only if the file lacks its closing magic.
+    fn failed(
+        &mut self,
+        source: McapError,
+        ran_out: bool,
+        st: &ScanState,
+    ) -> Result<Step, SessionError> {
+        match source {
+            // A file that still ends with the magic was written to the end, so the cause is a
+            // damaged length field: reading that as truncation would drop every later chunk
+            // under a false warning.
+            source if ran_out && st.ends_with_magic => Err(SessionError::Mcap {
+                at: self.at_last(),
+                what: format!(
+                    "damaged data after byte {} (after the message named here; the file ends with the MCAP magic, so it is not truncated)",
+                    self.bytes_intact
+                ),
+                source,
+            }),
+            _ if ran_out => {
+                let at = self.at_last();
+                // The warning names the file: commands print it beside other files' warnings.
+                self.warnings.push(format!(
+                    "file is truncated: read {} messages from the first {} of {} bytes of {}; the rest is lost (last intact message: {})",
+                    self.messages.len(),
+                    self.bytes_intact,
+                    self.file_len,
+                    self.path.display(),
+                    match (at.topic, at.log_time_ns) {
+                        (Some(t), Some(ns)) => format!("{t} at {}", super::super::fmt_ns(ns)),
+                        _ => "none".to_owned(),
+                    }
+                ));
+                Ok(Step::Stop)
+            }
+            source => Err(SessionError::Mcap {
+                at: self.at_last(),
+                what: format!(
+                    "damaged data after byte {} (after the message named here)",
+                    self.bytes_intact
+                ),
+                source,
+            }),
+        }
+    }
+
+    /// Indexes one message: its channel must be known; a log time before the channel's
+    /// previous one (in file order) is noted.
+    fn take_message(
+        &mut self,
+        header: &mcap::records::MessageHeader,
+        loc: u64,
+        st: &mut ScanState,
+    ) -> Result<(), SessionError> {
+        let prev = st.last_time.insert(header.channel_id, header.log_time);
+        if let Some(prev) = prev.filter(|p| *p > header.log_time) {
+            let topic = self
+                .channels
+                .get(&header.channel_id)
+                .map(|c| c.topic.clone())
+                .unwrap_or_default();
+            self.backwards.push((topic, header.log_time, prev));
+        }
+        if !self.channels.contains_key(&header.channel_id) {
+            return Err(SessionError::Invalid {
+                at: At {
+                    path: self.path.clone(),
+                    topic: None,
+                    log_time_ns: Some(header.log_time),
+                },
+                what: format!("message refers to unknown channel {}", header.channel_id),
+            });
+        }
+        self.messages.push(MessageMeta {
+            channel_id: header.channel_id,
+            sequence: header.sequence,
+            log_time_ns: header.log_time,
+            publish_time_ns: header.publish_time,
+            loc,
+        });
+        Ok(())
+    }
+
+    /// Takes a header, schema or channel record; other records (indexes, statistics,
+    /// attachments) are not needed.
+    fn take_record(
+        &mut self,
+        record: Record<'_>,
+        schemas: &mut Schemas,
+    ) -> Result<(), SessionError> {
+        match record {
+            Record::Header(h) => {
+                self.profile = h.profile;
+                self.library = h.library;
+            }
+            Record::Schema { header, data } => {
+                schemas.insert(header.id, (header.name, header.encoding, data.into_owned()));
+            }
+            Record::Channel(c) => {
+                let (schema_name, schema_encoding, schema_data) = if c.schema_id == 0 {
+                    Default::default()
+                } else {
+                    schemas
+                        .get(&c.schema_id)
+                        .cloned()
+                        .ok_or_else(|| SessionError::Invalid {
+                            at: At {
+                                path: self.path.clone(),
+                                topic: Some(c.topic.clone()),
+                                log_time_ns: None,
+                            },
+                            what: format!(
+                                "channel {} refers to unknown schema {}",
+                                c.id, c.schema_id
+                            ),
+                        })?
+                };
+                self.channels.insert(
+                    c.id,
+                    ChannelInfo {
+                        id: c.id,
+                        topic: c.topic,
+                        message_encoding: c.message_encoding,
+                        schema_name,
+                        schema_encoding,
+                        schema_data,
+                    },
+                );
+            }
+            _ => {}
+        }
+        Ok(())
+    }
+}

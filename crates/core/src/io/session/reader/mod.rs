@@ -1,0 +1,364 @@
+//! Reads a session MCAP into an index of its messages sorted by (log_time, channel id,
+//! sequence), and decodes them into typed [`crate::io::session::SessionMsg`] values by topic
+//! role, loading each payload only when it is decoded.
+//!
+//! Invariants: the whole file is scanned once, linearly (chunk CRCs checked), so files without
+//! a summary or with a cut-off tail still read; the index holds only where each payload is (a
+//! chunk and the message's ordinal in it, or a file offset), 32 bytes a message, so memory
+//! does not grow with the payloads; payloads come from a small cache of decompressed chunks
+//! that changes how fast, never what, a message reads; the order is that of a stable sort, so
+//! it is total and the same on every run.
+//!
+//! Layout: [`index`] is the scan, [`source`] the file or memory it reads and the chunk cache,
+//! [`decode`] the CDR decoding by role, [`summary`] the summary-section reader of
+//! `inspect --quick`.
+
+mod decode;
+mod index;
+mod source;
+mod summary;
+#[cfg(test)]
+mod tests;
+
+use std::collections::BTreeMap;
+use std::fs::File;
+use std::io::{Read, Seek, SeekFrom};
+use std::path::{Path, PathBuf};
+
+use super::{At, Role, SessionError};
+use crate::io::msgs::{CompressedImage, RosMessage};
+use source::{ChunkCache, Source};
+
+pub use summary::{SummarySection, read_summary_section};
+
+const MCAP_MAGIC: &[u8; 8] = b"\x89MCAP0\r\n";
+
+/// No single record of a session comes near this; a corrupt length field beyond it is
+/// refused instead of allocated.
+const RECORD_LENGTH_LIMIT: usize = 256 << 20;
+
+/// A channel as declared in the file, with its schema.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ChannelInfo {
+    /// MCAP channel id, unique within the file.
+    pub id: u16,
+    /// Topic name, e.g. `/odom`.
+    pub topic: String,
+    /// Message encoding, `cdr` for ROS 2.
+    pub message_encoding: String,
+    /// Schema name as written, `pkg/msg/Type` or `pkg/Type`; empty without a schema.
+    pub schema_name: String,
+    /// Schema encoding, `ros2msg` for the sessions objloc reads; empty without a schema.
+    pub schema_encoding: String,
+    /// Schema text, e.g. the `ros2msg` definition; empty without a schema.
+    pub schema_data: Vec<u8>,
+}
+
+/// Where a message's payload is in the file ([`SessionReader::payload_at`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PayloadAt {
+    /// Inside a chunk: the chunk record's offset and the message's ordinal among the chunk's
+    /// messages.
+    Chunk {
+        /// Offset of the chunk record (its opcode byte) from the start of the file.
+        offset_bytes: u64,
+        /// The message's ordinal among its chunk's messages, 0 for the first.
+        ordinal: u32,
+    },
+    /// A message record outside any chunk: its payload's bytes in the file.
+    File {
+        /// Offset of the payload's first byte from the start of the file.
+        offset_bytes: u64,
+        /// Length of the payload.
+        len_bytes: u64,
+    },
+}
+
+/// One message of the index: its header and where its CDR payload is, without the payload.
+/// 32 bytes, so a session's index costs 32 bytes per message.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct MessageMeta {
+    /// Time the message was recorded, ns since the Unix epoch.
+    pub log_time_ns: u64,
+    /// Time the message was published, ns since the Unix epoch (the log time if unknown).
+    pub publish_time_ns: u64,
+    /// The payload's place: its segment (chunk or unchunked record, numbered in file order)
+    /// in the high 32 bits, its ordinal in the chunk in the low 32. Increases in file order.
+    loc: u64,
+    /// Sequence number from the MCAP message header, counted per channel by the writer.
+    pub sequence: u32,
+    /// The [`ChannelInfo::id`] of its channel.
+    pub channel_id: u16,
+}
+
+impl MessageMeta {
+    fn segment(&self) -> usize {
+        (self.loc >> 32) as usize
+    }
+
+    fn ordinal(&self) -> u32 {
+        (self.loc & u64::from(u32::MAX)) as u32
+    }
+}
+
+/// What holds payloads, in file order: a chunk, or one message record outside any chunk.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Segment {
+    /// A chunk record (opcode and length included).
+    Chunk(ByteSpan),
+    /// The payload of an unchunked message record.
+    Payload(ByteSpan),
+}
+
+/// A byte range of the file.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct ByteSpan {
+    offset_bytes: u64,
+    len_bytes: u64,
+}
+
+/// A session file's index: its channels and all its messages, sorted by (log time, channel id,
+/// sequence); payloads are read from the file (or memory) when decoded.
+#[derive(Debug)]
+pub struct SessionReader {
+    path: PathBuf,
+    topics: super::Topics,
+    /// MCAP header profile, e.g. `ros2`; empty if the file declares none.
+    pub profile: String,
+    /// MCAP header library: what wrote the file, e.g. `objloc 0.1.0`.
+    pub library: String,
+    channels: BTreeMap<u16, ChannelInfo>,
+    messages: Vec<MessageMeta>,
+    segments: Vec<Segment>,
+    chunk_count: usize,
+    source: Source,
+    cache: ChunkCache,
+    /// Non-fatal problems met while reading (a truncated tail, say).
+    pub warnings: Vec<String>,
+    /// Bytes of the file that were read as intact records.
+    pub bytes_intact: u64,
+    /// (topic, log time, previous log time) where a channel's log times went backwards in
+    /// file order.
+    pub backwards: Vec<(String, u64, u64)>,
+    /// Size of the file, bytes.
+    pub file_len: u64,
+}
+
+/// `pkg/Type` and `pkg/msg/Type` name the same ROS 2 message.
+pub fn normalize_type(name: &str) -> String {
+    match name.split('/').collect::<Vec<_>>().as_slice() {
+        [pkg, ty] => format!("{pkg}/msg/{ty}"),
+        _ => name.to_owned(),
+    }
+}
+
+/// Reads up to `buf.len()` bytes, fewer only at the end of the input.
+fn read_full(input: &mut impl Read, buf: &mut [u8]) -> std::io::Result<usize> {
+    let mut n = 0;
+    while n < buf.len() {
+        match input.read(&mut buf[n..]) {
+            Ok(0) => break,
+            Ok(k) => n += k,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+            Err(e) => return Err(e),
+        }
+    }
+    Ok(n)
+}
+
+impl SessionReader {
+    /// Indexes the session file at `path` in one pass through a buffered reader; `topics`
+    /// gives topics their roles. The file stays open: payloads are read from it on decoding.
+    pub fn open(path: &Path, topics: super::Topics) -> Result<Self, SessionError> {
+        let io = |source| SessionError::Io {
+            path: path.to_owned(),
+            source,
+        };
+        let mut file = File::open(path).map_err(io)?;
+        let file_len = file.metadata().map_err(io)?.len();
+        let mut head = [0u8; 8];
+        let head_len = read_full(&mut file, &mut head).map_err(io)?;
+        let mut tail = [0u8; 8];
+        let tail_len = if file_len >= 2 * MCAP_MAGIC.len() as u64 {
+            file.seek(SeekFrom::Start(file_len - MCAP_MAGIC.len() as u64))
+                .map_err(io)?;
+            read_full(&mut file, &mut tail).map_err(io)?
+        } else {
+            0
+        };
+        file.seek(SeekFrom::Start(0)).map_err(io)?;
+        let mut me = Self::empty(path, topics, file_len, Source::Memory(Vec::new()));
+        me.check_head(&head[..head_len])?;
+        let ends_with_magic = tail_len == MCAP_MAGIC.len() && tail == *MCAP_MAGIC;
+        // The `take` keeps the scan to the length seen at opening, as one read of the whole
+        // file would: a file still being written is indexed as it was then.
+        let mut input = std::io::BufReader::with_capacity(1 << 16, &file).take(file_len);
+        me.scan(&mut input, ends_with_magic)?;
+        // The same open file serves the payloads: renaming or replacing the path later does
+        // not change what is read.
+        me.source = Source::file(file);
+        me.finish();
+        Ok(me)
+    }
+
+    /// Indexes a session held in memory (the bytes are copied: payloads are read from them
+    /// on decoding); `path` is only used to name it in errors.
+    pub fn from_bytes(
+        path: &Path,
+        buf: &[u8],
+        topics: super::Topics,
+    ) -> Result<Self, SessionError> {
+        let mut me = Self::empty(path, topics, buf.len() as u64, Source::Memory(buf.to_vec()));
+        me.check_head(&buf[..buf.len().min(MCAP_MAGIC.len())])?;
+        let ends_with_magic = buf.len() >= 2 * MCAP_MAGIC.len() && buf.ends_with(MCAP_MAGIC);
+        let mut input = buf;
+        me.scan(&mut input, ends_with_magic)?;
+        me.finish();
+        Ok(me)
+    }
+
+    /// The same index, read with a cache of at most `chunks` decompressed chunks (at least 1).
+    /// The cache changes only how often a chunk is decompressed again, never what is read.
+    pub fn with_chunk_cache(mut self, chunks: usize) -> Self {
+        self.cache = ChunkCache::new(chunks);
+        self
+    }
+
+    fn empty(path: &Path, topics: super::Topics, file_len: u64, source: Source) -> Self {
+        Self {
+            path: path.to_owned(),
+            topics,
+            profile: String::new(),
+            library: String::new(),
+            channels: BTreeMap::new(),
+            messages: Vec::new(),
+            segments: Vec::new(),
+            chunk_count: 0,
+            source,
+            cache: ChunkCache::new(ChunkCache::default_capacity()),
+            warnings: Vec::new(),
+            bytes_intact: 0,
+            backwards: Vec::new(),
+            file_len,
+        }
+    }
+
+    /// Fails unless `head`, the file's first (up to 8) bytes, is the MCAP magic.
+    fn check_head(&self, head: &[u8]) -> Result<(), SessionError> {
+        if head != MCAP_MAGIC {
+            return Err(SessionError::NotMcap {
+                path: self.path.clone(),
+                head: head.to_vec(),
+            });
+        }
+        Ok(())
+    }
+
+    /// Sorts the index into replay order: by (log time, channel id, sequence), equal keys in
+    /// file order, so the order is total and reproducible.
+    fn finish(&mut self) {
+        // `loc` increases in file order and is unique, so this in-place sort gives exactly the
+        // order of a stable sort by the first three keys, without its scratch buffer (half the
+        // index).
+        self.messages
+            .sort_unstable_by_key(|m| (m.log_time_ns, m.channel_id, m.sequence, m.loc));
+        self.messages.shrink_to_fit();
+        self.segments.shrink_to_fit();
+    }
+
+    /// The file read, as named to [`SessionReader::open`] or [`SessionReader::from_bytes`].
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// The topic names of the session roles this reader decodes by.
+    pub fn topics(&self) -> &super::Topics {
+        &self.topics
+    }
+
+    /// Every channel declared in the file, by id.
+    pub fn channels(&self) -> &BTreeMap<u16, ChannelInfo> {
+        &self.channels
+    }
+
+    /// All messages in (log_time, channel id, sequence) order, without their payloads.
+    pub fn index(&self) -> &[MessageMeta] {
+        &self.messages
+    }
+
+    /// Number of chunks the file holds (before any damage that ended the scan).
+    pub fn chunk_count(&self) -> usize {
+        self.chunk_count
+    }
+
+    /// Where the payload of `meta` (a message of this reader's index) is in the file.
+    pub fn payload_at(&self, meta: &MessageMeta) -> Option<PayloadAt> {
+        Some(match *self.segments.get(meta.segment())? {
+            Segment::Chunk(span) => PayloadAt::Chunk {
+                offset_bytes: span.offset_bytes,
+                ordinal: meta.ordinal(),
+            },
+            Segment::Payload(span) => PayloadAt::File {
+                offset_bytes: span.offset_bytes,
+                len_bytes: span.len_bytes,
+            },
+        })
+    }
+
+    /// Number of messages on `topic`.
+    pub fn count(&self, topic: &str) -> usize {
+        let ids: Vec<u16> = self
+            .channels
+            .values()
+            .filter(|c| c.topic == topic)
+            .map(|c| c.id)
+            .collect();
+        self.messages
+            .iter()
+            .filter(|m| ids.contains(&m.channel_id))
+            .count()
+    }
+
+    /// A location in this file for errors: `topic`, if given, at log time `log_time_ns`.
+    pub fn at(&self, topic: Option<&str>, log_time_ns: u64) -> At {
+        At {
+            path: self.path.clone(),
+            topic: topic.map(str::to_owned),
+            log_time_ns: Some(log_time_ns),
+        }
+    }
+
+    /// The location of `meta` for errors: its topic (when its channel is known) and log time.
+    fn at_meta(&self, meta: &MessageMeta) -> At {
+        let topic = self
+            .channels
+            .get(&meta.channel_id)
+            .map(|c| c.topic.as_str());
+        self.at(topic, meta.log_time_ns)
+    }
+
+    /// Fails unless at least one message is on the topic of `role`.
+    pub fn require(&self, role: Role) -> Result<(), SessionError> {
+        let topic = self.topics.get(role);
+        if self.count(topic) == 0 {
+            return Err(SessionError::MissingTopic {
+                path: self.path.clone(),
+                topic: topic.to_owned(),
+                type_name: role.message_type(),
+            });
+        }
+        Ok(())
+    }
+
+    /// Fails unless frames (compressed or raw) are present.
+    pub fn require_frames(&self) -> Result<(), SessionError> {
+        if self.count(&self.topics.compressed_image) + self.count(&self.topics.image) == 0 {
+            return Err(SessionError::MissingTopic {
+                path: self.path.clone(),
+                topic: format!("{} or {}", self.topics.compressed_image, self.topics.image),
+                type_name: CompressedImage::TYPE,
+            });
+        }
+        Ok(())
+    }
+}
