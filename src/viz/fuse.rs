@@ -15,8 +15,8 @@ use objloc_core::fuse::refine::Verdict;
 use objloc_core::fuse::replay::{FrameStep, Observer, ObserverError, SessionData};
 use objloc_core::io::msgs::iso_from_pose;
 use objloc_core::out::view::{
-    GridSummary, centroid_error_m, overlay_rgba, pyramids, summarize_grid, upscale, verdict_rgb,
-    viridis,
+    GridSummary, centroid_error_m, is_snapshot, overlay_rgba_of_tiles, pyramids, summarize_grid,
+    upscale, verdict_rgb, viridis,
 };
 use objloc_core::types::geometry::{Iso3, yaw_of};
 use objloc_core::types::image::Rgb8;
@@ -59,6 +59,14 @@ const TRUTH_TRACK: &str = "world/robot/ground_truth";
 const REFINED_TRACKS: [&str; 2] = ["world/robot/refined", "world/robot/refined/frames"];
 /// Rerun's implicit frame of the `world` entity.
 const WORLD_FRAME: &str = "tf#/world";
+/// Most snapshots a replay logs of what grows with the replay (the whole grid with its
+/// projections and entropy; the trajectories so far): every frame's up to this many frames,
+/// then every k-th frame's and the last's. A grid snapshot costs more than fusing a frame
+/// (a million cells summarised, a few hundred kB logged) and a trajectory grows with the
+/// frames, so a long replay streamed all of them every frame took twice its replay time and
+/// wrote 0.4 MB a frame. The viewer shows the latest snapshot at any time; the robot, the
+/// camera frame, the pyramids, the objects and the plots stay per frame.
+const SNAPSHOTS: usize = 100;
 /// One line per refined frame: the verdict and its numbers; the rollback, when it happens.
 const VERDICT_LOG: &str = "refinement";
 
@@ -146,10 +154,15 @@ fn truth_boxes(data: &SessionData) -> Option<rerun::Boxes3D> {
     )
 }
 
+/// Probabilities in [0, 1] as a hoverable image: u8 steps of 1/255 (the viewer shows p as the
+/// "depth"), a quarter of f32's bytes for a stream that logs one per frame.
 pub(crate) fn depth_image(p: Vec<f32>, width: u32, height: u32) -> rerun::DepthImage {
-    let bytes: Vec<u8> = p.iter().flat_map(|v| v.to_le_bytes()).collect();
-    rerun::DepthImage::from_data_type_and_bytes(bytes, [width, height], rerun::ChannelDatatype::F32)
-        .with_meter(1.0)
+    let bytes: Vec<u8> = p
+        .iter()
+        .map(|v| (v.clamp(0.0, 1.0) * 255.0).round() as u8)
+        .collect();
+    rerun::DepthImage::from_data_type_and_bytes(bytes, [width, height], rerun::ChannelDatatype::U8)
+        .with_meter(255.0)
         .with_colormap(rerun::components::Colormap::Viridis)
         .with_depth_range([0.0, 1.0])
 }
@@ -169,8 +182,11 @@ pub(crate) fn log_frame_and_probs(
     let p = upscale(probs, image.width, image.height);
     rec.log(
         format!("{base}/overlay"),
-        &rerun::Image::from_rgba32(overlay_rgba(&p), [image.width, image.height])
-            .with_draw_order(10.0),
+        &rerun::Image::from_rgba32(
+            overlay_rgba_of_tiles(probs, image.width, image.height),
+            [image.width, image.height],
+        )
+        .with_draw_order(10.0),
     )
     .map_err(log_err)?;
     rec.log(
@@ -274,16 +290,20 @@ impl FuseViz {
             ),
         );
         rec.set_time_sequence(TIMELINE_FRAME, step.index as i64);
-        self.tracks(data, step)?;
-        self.refinement(step)?;
+        let snapshot = is_snapshot(step.index, step.frames, SNAPSHOTS);
+        self.tracks(data, step, snapshot)?;
+        self.refinement(step, snapshot)?;
         log_frame_and_probs(&self.rec, "world/robot/camera", &step.image, &step.probs)?;
         self.pyramids(data, step)?;
-        let s = self.grid(grid)?;
-        self.objects(data, step, &s)
+        if snapshot {
+            let s = self.grid(grid)?;
+            scalar(&self.rec, "plots/mean_entropy_bits", s.mean_entropy_bits)?;
+        }
+        self.objects(data, step)
     }
 
     /// The robot's pose and the /odom and true tracks up to the frame.
-    fn tracks(&self, data: &SessionData, step: &FrameStep) -> Result<(), VizError> {
+    fn tracks(&self, data: &SessionData, step: &FrameStep, snapshot: bool) -> Result<(), VizError> {
         let rec = &self.rec;
         rec.log("world/robot", &transform(&step.odom_from_base))
             .map_err(log_err)?;
@@ -291,6 +311,9 @@ impl FuseViz {
             let mount = step.odom_from_base.inverse() * step.odom_from_camera;
             rec.log("world/robot/camera", &transform(&mount))
                 .map_err(log_err)?;
+        }
+        if !snapshot {
+            return Ok(());
         }
         let stamp = step.frame.stamp_ns;
         rec.log(
@@ -316,9 +339,28 @@ impl FuseViz {
         Ok(())
     }
 
+    /// The refined positions so far, as a line and as points coloured by their verdicts.
+    fn log_refined_track(&self) -> Result<(), VizError> {
+        let color = rerun::Color::from_rgb(REFINED_RGB[0], REFINED_RGB[1], REFINED_RGB[2]);
+        self.rec
+            .log(
+                REFINED_TRACKS[0],
+                &rerun::LineStrips3D::new([self.refined_track.clone()]).with_colors([color]),
+            )
+            .map_err(log_err)?;
+        self.rec
+            .log(
+                REFINED_TRACKS[1],
+                &rerun::Points3D::new(self.refined_track.clone())
+                    .with_colors(self.refined_colors.clone())
+                    .with_radii([0.03]),
+            )
+            .map_err(log_err)
+    }
+
     /// The refined track (each position coloured by its verdict), the verdict's text line and
     /// the correction's plots.
-    fn refinement(&mut self, step: &FrameStep) -> Result<(), VizError> {
+    fn refinement(&mut self, step: &FrameStep, snapshot: bool) -> Result<(), VizError> {
         let t = step.odom_from_base.translation.vector;
         let here = [t.x as f32, t.y as f32, t.z as f32];
         if self.first_position.is_none() {
@@ -341,21 +383,9 @@ impl FuseViz {
             self.refined_track.push(here);
             let [r, g, b] = verdict_rgb(c.outcome);
             self.refined_colors.push(rerun::Color::from_rgb(r, g, b));
-            let color = rerun::Color::from_rgb(REFINED_RGB[0], REFINED_RGB[1], REFINED_RGB[2]);
-            self.rec
-                .log(
-                    REFINED_TRACKS[0],
-                    &rerun::LineStrips3D::new([self.refined_track.clone()]).with_colors([color]),
-                )
-                .map_err(log_err)?;
-            self.rec
-                .log(
-                    REFINED_TRACKS[1],
-                    &rerun::Points3D::new(self.refined_track.clone())
-                        .with_colors(self.refined_colors.clone())
-                        .with_radii([0.03]),
-                )
-                .map_err(log_err)?;
+            if snapshot {
+                self.log_refined_track()?;
+            }
             let level = match c.outcome {
                 Verdict::Accepted | Verdict::Insignificant | Verdict::NoEvidence => {
                     rerun::TextLogLevel::INFO
@@ -444,12 +474,7 @@ impl FuseViz {
     }
 
     /// The objects found after the frame and the whole-grid plots.
-    fn objects(
-        &self,
-        data: &SessionData,
-        step: &FrameStep,
-        s: &GridSummary,
-    ) -> Result<(), VizError> {
+    fn objects(&self, data: &SessionData, step: &FrameStep) -> Result<(), VizError> {
         let rec = &self.rec;
         let objects = &step.objects;
         let boxes = rerun::Boxes3D::from_mins_and_sizes(
@@ -505,8 +530,7 @@ impl FuseViz {
         )
         .map_err(log_err)?;
 
-        scalar(rec, "plots/max_posterior", s.max_posterior)?;
-        scalar(rec, "plots/mean_entropy_bits", s.mean_entropy_bits)?;
+        scalar(rec, "plots/max_posterior", step.max_probability)?;
         scalar(rec, "counts/cells_updated", step.cells_updated as f64)?;
         scalar(rec, "counts/objects", objects.len() as f64)?;
         if let Some(e) = centroid_error_m(objects, data) {

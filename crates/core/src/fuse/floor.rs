@@ -369,21 +369,29 @@ impl FloorMap {
         let stride = stride.max(1);
         let s0 = self.params.sigma_colour * self.params.sigma_colour;
         let cap = self.params.truncate_sigmas * self.params.truncate_sigmas;
-        let mut sum = 0.0;
-        // Precompute the pose as a 2D rotation and translation.
+        // The pose and the map's cell coordinates folded into one affine map from a patch
+        // point to map cell-centre coordinates: the scorer's inner loop runs hundreds of
+        // thousands of times per frame, and this leaves it no division but the two a
+        // residual needs.
+        let inv_cell = 1.0 / self.params.cell_m;
         let (sin, cos) = yaw_of(odom_from_base).sin_cos();
         let t: Vector3<f64> = odom_from_base.translation.vector;
+        let (a, b) = (cos * inv_cell, sin * inv_cell);
+        let ox = (t.x - self.origin_m[0]) * inv_cell - 0.5;
+        let oy = (t.y - self.origin_m[1]) * inv_cell - 0.5;
+        let mut sum = 0.0;
         let mut used = 0usize;
         for (p, c) in patch.points_m.iter().zip(&patch.colour).step_by(stride) {
             used += 1;
-            let q = [cos * p[0] - sin * p[1] + t.x, sin * p[0] + cos * p[1] + t.y];
+            let fx = a * p[0] - b * p[1] + ox;
+            let fy = b * p[0] + a * p[1] + oy;
             let mut r2 = 1.0;
-            if let Some(acc) = self.lookup(&q) {
+            if let Some(acc) = self.lookup_cell(fx, fy) {
                 let k = 1.0 / acc[4];
                 let d2: f64 = (0..3)
                     .map(|ch| (f64::from(c[ch]) - acc[ch] * k).powi(2))
                     .sum::<f64>()
-                    / 3.0;
+                    * (1.0 / 3.0);
                 r2 = (d2 / (s0 + acc[3] * k)).min(cap);
             }
             sum -= 0.5 * r2;
@@ -393,6 +401,43 @@ impl FloorMap {
             sum *= patch.points_m.len() as f64 / used as f64;
         }
         sum * self.params.weight
+    }
+
+    /// [`FloorMap::lookup`] at cell-centre coordinates (`fx`, `fy`).
+    #[inline]
+    fn lookup_cell(&self, fx: f64, fy: f64) -> Option<[f64; 5]> {
+        // Negated so that NaN is rejected too.
+        if !(fx >= 0.0 && fy >= 0.0) {
+            return None;
+        }
+        let (x0, y0) = (fx as usize, fy as usize);
+        if x0 + 1 >= self.nx || y0 + 1 >= self.ny {
+            return None;
+        }
+        let (sx, sy) = (fx - x0 as f64, fy - y0 as f64);
+        let i = y0 * self.nx + x0;
+        let (lo, hi) = (
+            &self.stats[i..i + 2],
+            &self.stats[i + self.nx..i + self.nx + 2],
+        );
+        let w = [
+            (1.0 - sx) * (1.0 - sy),
+            sx * (1.0 - sy),
+            (1.0 - sx) * sy,
+            sx * sy,
+        ];
+        let mut acc = [0.0f64; 5];
+        for (cell, wi) in [
+            (&lo[0], w[0]),
+            (&lo[1], w[1]),
+            (&hi[0], w[2]),
+            (&hi[1], w[3]),
+        ] {
+            for (a, &v) in acc.iter_mut().zip(cell) {
+                *a += wi * v;
+            }
+        }
+        (acc[4] >= 0.5).then_some(acc)
     }
 }
 
@@ -445,6 +490,63 @@ mod tests {
         let below = (horizon_row + 1..60).count() * 64;
         let counted: u32 = patch.pixels.iter().sum();
         assert!(counted as usize <= below, "{counted} > {below}");
+    }
+
+    /// The score as the map's own `lookup` gives it, point by point in `odom`.
+    fn score_by_lookup(map: &FloorMap, patch: &FloorPatch, pose: &Iso3) -> f64 {
+        let p = map.params;
+        let (s0, cap) = (p.sigma_colour * p.sigma_colour, p.truncate_sigmas.powi(2));
+        let mut sum = 0.0;
+        for (q, c) in patch.points_m.iter().zip(&patch.colour) {
+            let r2 = map.lookup(&to_odom(pose, q)).map_or(1.0, |acc| {
+                let k = 1.0 / acc[4];
+                let d2 = (0..3)
+                    .map(|ch| (f64::from(c[ch]) - acc[ch] * k).powi(2))
+                    .sum::<f64>()
+                    / 3.0;
+                (d2 / (s0 + acc[3] * k)).min(cap)
+            });
+            sum -= 0.5 * r2;
+        }
+        sum * p.weight
+    }
+
+    #[test]
+    fn the_folded_scorer_agrees_with_point_by_point_lookups() {
+        let params = FloorParams::default();
+        let mut map = FloorMap::new([-1.0, -1.0], [1.0, 1.0], params);
+        // A textured floor: colour varies with position, seen from two poses.
+        let points_m: Vec<[f64; 2]> = (0..400)
+            .map(|i| {
+                [
+                    f64::from(i % 20) * 0.06 - 0.6,
+                    f64::from(i / 20) * 0.06 - 0.6,
+                ]
+            })
+            .collect();
+        let colour = points_m
+            .iter()
+            .map(|p| [(p[0] + 1.0) as f32 * 0.4, (p[1] + 1.0) as f32 * 0.3, 0.5])
+            .collect();
+        let patch = FloorPatch {
+            pixels: vec![8; points_m.len()],
+            colour,
+            points_m,
+        };
+        map.add(&patch, &Iso3::identity());
+        map.add(
+            &patch,
+            &crate::types::geometry::iso_from_xy_yaw(0.03, -0.02, 0.05),
+        );
+        for (x, y, yaw) in [(0.0, 0.0, 0.0), (0.05, -0.04, 0.1), (-0.3, 0.2, -0.7)] {
+            let pose = crate::types::geometry::iso_from_xy_yaw(x, y, yaw);
+            let want = score_by_lookup(&map, &patch, &pose);
+            let got = map.score(&patch, &pose);
+            assert!(
+                (got - want).abs() <= 1e-9 * want.abs().max(1.0),
+                "{got} vs {want}"
+            );
+        }
     }
 
     #[test]

@@ -7,7 +7,6 @@
 //! on the thread count.
 
 use nalgebra::Point3;
-use rayon::prelude::*;
 use sha2::{Digest, Sha256};
 
 use crate::fuse::grid::{Grid, sigmoid};
@@ -56,6 +55,64 @@ fn binary_entropy_bits(p: f64) -> f64 {
     h(p) + h(1.0 - p)
 }
 
+/// Log-odds beyond which [`PosteriorTable`] holds a cell at 0 or 1 (sigmoid(-40) = 4e-18).
+const TABLE_LOG_ODDS_MAX: f64 = 40.0;
+/// Table entries per unit of log-odds: linear interpolation between them is within 2e-7 of
+/// the posterior and 3e-6 bits of the entropy, far below what a plot shows.
+const TABLE_STEPS_PER_UNIT: f64 = 256.0;
+
+/// Whether frame `index` of a pass of `frames` frames gets a snapshot of what grows with the
+/// replay, when at most about `max_snapshots` are wanted: every frame up to that many
+/// frames, then every k-th (k = frames / max_snapshots, rounded up) and always the last, so a
+/// pass logs at most `max_snapshots + 1`.
+pub fn is_snapshot(index: usize, frames: usize, max_snapshots: usize) -> bool {
+    let every = frames.div_ceil(max_snapshots.max(1)).max(1);
+    index.is_multiple_of(every) || index + 1 == frames
+}
+
+/// Built on first use, then shared: the same values every time.
+static POSTERIOR_TABLE: std::sync::OnceLock<PosteriorTable> = std::sync::OnceLock::new();
+
+/// Posterior and binary entropy as functions of log-odds, tabulated: the whole-grid
+/// projections and the mean entropy of a snapshot need both for every cell (a million
+/// cells, three transcendental calls each, cost more than the replay's frame), and a plot
+/// needs neither to the last bit. The shown cells and the maximum use the exact sigmoid.
+struct PosteriorTable {
+    /// (posterior, entropy bits) at log-odds `-MAX + i / STEPS`.
+    at: Vec<(f64, f64)>,
+}
+
+impl PosteriorTable {
+    fn new() -> Self {
+        let n = (2.0 * TABLE_LOG_ODDS_MAX * TABLE_STEPS_PER_UNIT) as usize + 1;
+        let at = (0..n)
+            .map(|i| {
+                let l = i as f64 / TABLE_STEPS_PER_UNIT - TABLE_LOG_ODDS_MAX;
+                let p = sigmoid(l);
+                (p, binary_entropy_bits(p))
+            })
+            .collect();
+        Self { at }
+    }
+
+    /// (posterior, entropy bits) of log-odds `l`, interpolated; NaN counts as the bottom end.
+    #[inline]
+    fn get(&self, l: f32) -> (f64, f64) {
+        let x = (f64::from(l) + TABLE_LOG_ODDS_MAX) * TABLE_STEPS_PER_UNIT;
+        if x.is_nan() || x <= 0.0 {
+            return self.at[0];
+        }
+        let last = self.at.len() - 1;
+        if x >= last as f64 {
+            return self.at[last];
+        }
+        let i = x as usize;
+        let f = x - i as f64;
+        let (a, b) = (self.at[i], self.at[i + 1]);
+        (a.0 + f * (b.0 - a.0), a.1 + f * (b.1 - a.1))
+    }
+}
+
 /// The [`GridSummary`] of `grid`; the cells shown have a posterior above `min_posterior` and were
 /// seen by at least `min_views` frames.
 pub fn summarize_grid(grid: &Grid, min_posterior: f32, min_views: u16) -> GridSummary {
@@ -66,41 +123,29 @@ pub fn summarize_grid(grid: &Grid, min_posterior: f32, min_views: u16) -> GridSu
     let mut cells = Vec::new();
     let mut max_l = f32::NEG_INFINITY;
     let mut entropy = 0.0;
-    // The transcendental part in parallel, per cell; the sums below stay sequential in index
-    // order, so the result does not depend on the thread count.
-    // Most cells hold one of few values (the prior, outside every view, comes in long runs
-    // along a column), so each column remembers its last value: a pure function of the cell's
-    // log-odds either way.
-    let mut p_h: Vec<(f64, f64)> = vec![(0.0, 0.0); grid.log_odds.len()];
-    p_h.par_chunks_mut(nz.max(1))
-        .zip(grid.log_odds.par_chunks(nz.max(1)))
-        .for_each(|(out, col)| {
-            let mut last: Option<(u32, (f64, f64))> = None;
-            for (o, &l) in out.iter_mut().zip(col) {
-                *o = match last {
-                    Some((bits, v)) if bits == l.to_bits() => v,
-                    _ => {
-                        let p = sigmoid(f64::from(l));
-                        let v = (p, binary_entropy_bits(p));
-                        last = Some((l.to_bits(), v));
-                        v
-                    }
-                };
-            }
-        });
+    let table = POSTERIOR_TABLE.get_or_init(PosteriorTable::new);
+    // A cell can be shown only if its log-odds come near the threshold's: the exact sigmoid
+    // decides for those few (the margin covers the rounding of logit and of the f32 cast).
+    let near_threshold = (crate::fuse::grid::logit(f64::from(min_posterior)) - 1e-3) as f32;
+    // One sequential pass in index order (the sums do not depend on the thread count); the
+    // table makes each cell a few multiplications, so no buffer of per-cell values is needed.
     for i in 0..nx {
         for j in 0..ny {
             for k in 0..nz {
                 let idx = grid.spec.index(i, j, k);
-                max_l = max_l.max(grid.log_odds[idx]);
-                let (p, h) = p_h[idx];
+                let l = grid.log_odds[idx];
+                max_l = max_l.max(l);
+                let (p, h) = table.get(l);
                 entropy += h;
                 let (rz, ry) = (nz - 1 - k, ny - 1 - j);
                 along_x[rz * ny + j] += p;
                 along_y[rz * nx + i] += p;
                 along_z[ry * nx + i] += p;
-                if p as f32 > min_posterior && grid.views[idx] >= min_views {
-                    cells.push(([i as i32, j as i32, k as i32], p as f32));
+                if l > near_threshold && grid.views[idx] >= min_views {
+                    let p = sigmoid(f64::from(l)) as f32;
+                    if p > min_posterior {
+                        cells.push(([i as i32, j as i32, k as i32], p));
+                    }
                 }
             }
         }
@@ -201,6 +246,40 @@ pub fn overlay_rgba(p: &[f32]) -> Vec<u8> {
             0
         };
         out.extend_from_slice(&[r, g, b, a]);
+    }
+    out
+}
+
+/// [`overlay_rgba`] of [`upscale`]`(probs, width, height)`, computed per tile: the same
+/// bytes, with one colour per tile rather than per pixel (the fuse stream draws it for
+/// every frame).
+pub fn overlay_rgba_of_tiles(probs: &TileProbs, width: u32, height: u32) -> Vec<u8> {
+    let tile_rgba: Vec<[u8; 4]> = probs
+        .p
+        .iter()
+        .map(|&v| {
+            let rgba = overlay_rgba(&[v]);
+            [rgba[0], rgba[1], rgba[2], rgba[3]]
+        })
+        .collect();
+    let outside = {
+        let o = overlay_rgba(&[0.0]);
+        [o[0], o[1], o[2], o[3]]
+    };
+    let t = probs.tile_px.max(1) as usize;
+    let (w, h) = (width as usize, height as usize);
+    let mut out = Vec::with_capacity(w * h * 4);
+    for y in 0..h {
+        let r = y / t;
+        for x in 0..w {
+            let c = x / t;
+            let px = if r < probs.rows && c < probs.cols {
+                tile_rgba[r * probs.cols + c]
+            } else {
+                outside
+            };
+            out.extend_from_slice(&px);
+        }
     }
     out
 }
@@ -339,6 +418,58 @@ mod tests {
         );
         // Along x (y wide = 1, z up): k = 1 -> (0.5 + 0.8) / 2, k = 0 -> (0.8 + 0.5) / 2.
         assert!(s.along_x.iter().all(|v| (v - 0.65).abs() < 1e-6));
+    }
+
+    #[test]
+    fn posterior_table_is_within_plot_precision_of_the_exact_values() {
+        let t = PosteriorTable::new();
+        for i in -2000..=2000 {
+            let l = i as f32 * 0.0237;
+            let p = sigmoid(f64::from(l));
+            let (tp, th) = t.get(l);
+            assert!((tp - p).abs() < 1e-6, "p at {l}: {tp} vs {p}");
+            assert!((th - binary_entropy_bits(p)).abs() < 1e-5, "h at {l}");
+        }
+        assert_eq!(t.get(f32::NAN), t.at[0]);
+        assert!(t.at[0].0 < 1e-17 && t.at[0].1 < 1e-15);
+        assert_eq!(t.get(-100.0).0, t.at[0].0);
+        assert!((t.get(100.0).0 - 1.0).abs() < 1e-15);
+    }
+
+    #[test]
+    fn snapshots_are_every_frame_then_every_kth_and_the_last() {
+        let picked = |frames: usize| -> Vec<usize> {
+            (0..frames)
+                .filter(|&i| is_snapshot(i, frames, 100))
+                .collect()
+        };
+        assert_eq!(picked(8), (0..8).collect::<Vec<_>>());
+        assert_eq!(picked(100).len(), 100);
+        // 250 frames: k = 3, so 0, 3, ..., 249 (84 of them), and 249 is also the last.
+        let p = picked(250);
+        assert_eq!(p.len(), 84);
+        assert_eq!((p[1], p[83]), (3, 249));
+        // 1001 frames: k = 11: 0, 11, ..., 990 (91) and the last, 1000.
+        let p = picked(1001);
+        assert_eq!(p.len(), 92);
+        assert_eq!(*p.last().unwrap(), 1000);
+        assert!(picked(100_000).len() <= 101);
+    }
+
+    #[test]
+    fn the_tile_overlay_is_the_pixel_overlay() {
+        // 2 x 3 tiles of 4 px in an image 10 px wide and 9 high: a partial tile column and
+        // row outside whole tiles.
+        let probs = TileProbs {
+            rows: 2,
+            cols: 2,
+            tile_px: 4,
+            p: vec![0.1, 0.9, 0.5, 0.0],
+        };
+        assert_eq!(
+            overlay_rgba_of_tiles(&probs, 10, 9),
+            overlay_rgba(&upscale(&probs, 10, 9))
+        );
     }
 
     #[test]

@@ -213,6 +213,10 @@ pub struct FrameStep {
     pub objects: Vec<Object>,
     /// Grid cells the frame's evidence updated (centres projecting into a tile).
     pub cells_updated: usize,
+    /// Highest cell probability in the grid after the frame, in [0, 1].
+    pub max_probability: f64,
+    /// Frames in this pass: the step with `index + 1 == frames` is the last.
+    pub frames: usize,
 }
 
 /// Sees the replay; cannot change it.

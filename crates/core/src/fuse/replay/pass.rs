@@ -145,6 +145,7 @@ fn step(
     );
     let objects = find_objects(&pass.fuser.grid, &options.objects);
     let cells_updated = pass.fuser.last_cells_updated;
+    let max_probability = max_probability(&pass.fuser.grid);
     for o in observers.iter_mut() {
         o.on_progress(Stage::Fuse, index + 1, ctx.prepared.len());
     }
@@ -162,6 +163,8 @@ fn step(
             segments,
             cells_updated,
             objects: objects.clone(),
+            max_probability,
+            frames: ctx.prepared.len(),
         };
         for o in observers.iter_mut().filter(|o| o.wants_steps()) {
             o.on_frame(data, &step, &pass.fuser.grid)
@@ -174,7 +177,7 @@ fn step(
         &odom_from_base,
         correction,
         cells_updated,
-        &pass.fuser.grid,
+        max_probability,
         objects,
     ));
     Ok(())
@@ -226,20 +229,25 @@ fn localise_frame(
     (c, floor_unfit)
 }
 
+/// Highest cell probability of `grid`, in [0, 1].
+fn max_probability(grid: &Grid) -> f64 {
+    let max_l = grid
+        .log_odds
+        .iter()
+        .copied()
+        .fold(f32::NEG_INFINITY, f32::max);
+    crate::fuse::grid::sigmoid(f64::from(max_l))
+}
+
 fn summary(
     p: &Prepared,
     index: usize,
     odom_from_base: &Iso3,
     correction: Option<Correction>,
     cells_updated: usize,
-    grid: &Grid,
+    max_probability: f64,
     objects: Vec<Object>,
 ) -> FrameSummary {
-    let max_l = grid
-        .log_odds
-        .iter()
-        .copied()
-        .fold(f32::NEG_INFINITY, f32::max);
     let base = odom_from_base.translation.vector;
     let odo = p.odometry.translation.vector;
     FrameSummary {
@@ -252,7 +260,7 @@ fn summary(
         odom_yaw_rad: yaw_of(&p.odometry),
         correction,
         cells_updated,
-        max_probability: crate::fuse::grid::sigmoid(f64::from(max_l)),
+        max_probability,
         objects,
     }
 }
