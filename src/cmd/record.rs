@@ -65,6 +65,9 @@ struct SimArgs {
     /// Output session (written as OUT.partial, renamed when complete).
     #[arg(short, long)]
     output: PathBuf,
+    /// No progress bar (there is none anyway when stderr is not a terminal).
+    #[arg(short, long)]
+    quiet: bool,
 }
 
 #[derive(Debug, clap::Args)]
@@ -121,6 +124,9 @@ struct ImportArgs {
     object: String,
     #[arg(short, long)]
     output: PathBuf,
+    /// No progress bar (there is none anyway when stderr is not a terminal).
+    #[arg(short, long)]
+    quiet: bool,
 }
 
 /// The pose source the options name (clap has checked that exactly one is given).
@@ -196,8 +202,8 @@ fn floats<const N: usize>(s: &str, what: &str) -> anyhow::Result<[f64; N]> {
         .map_err(|_| anyhow::anyhow!("{what} {s:?} is not {N} comma-separated numbers"))
 }
 
-fn progress_bar() -> ProgressBar {
-    super::progress::frames_bar("", false)
+fn progress_bar(quiet: bool) -> ProgressBar {
+    super::progress::frames_bar("", quiet)
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
@@ -225,7 +231,7 @@ fn run_sim(a: SimArgs) -> anyhow::Result<()> {
         dump_frames: a.dump_frames,
         ..SimOptions::new(a.kind, a.seed)
     };
-    let bar = progress_bar();
+    let bar = progress_bar(a.quiet);
     bar.set_message(format!("{} {:?}", scene.name, a.kind).to_lowercase());
     let stats = objloc_core::sim::record(&scene, &opts, &a.output, &mut |done, total| {
         bar.set_length(total as u64);
@@ -249,7 +255,7 @@ fn run_import(a: ImportArgs) -> anyhow::Result<()> {
         masks: a.masks,
         object: a.object,
     };
-    let bar = progress_bar();
+    let bar = progress_bar(a.quiet);
     bar.set_message("import");
     let stats = objloc_core::io::import::import(&opts, &a.output, &mut |done, total| {
         bar.set_length(total as u64);

@@ -1,6 +1,5 @@
 //! The check of a refined replay against /odom, and the rule that rolls it back.
 
-use crate::fuse::floor::FloorPatch;
 use crate::fuse::objects::find_objects;
 use crate::fuse::refine::{Consistency, Sighting, sightings};
 use crate::types::geometry::Iso3;
@@ -33,16 +32,11 @@ pub(super) fn check_refinement(ctx: &Context<'_>, pass: &Pass) -> RefinementChec
     let gate = crate::fuse::refine::GATE_M + moved_m;
     let refined = Consistency::of(&seeds, &rays(&pass.poses), data.camera.fx, gate);
     let odom = Consistency::of(&seeds, &rays(&odometry), data.camera.fx, gate);
-    let floor = floor_params(&pass.fuser.options)
+    let floor = pass
+        .floor_check
+        .as_ref()
         .filter(|_| pass.floor_dropped_at.is_none())
-        .map(|fp| {
-            let disagreement = |poses: &[Iso3]| {
-                let patches: Vec<(&FloorPatch, &Iso3)> =
-                    ctx.prepared.iter().map(|p| &p.floor).zip(poses).collect();
-                crate::fuse::floor::disagreement(&patches, fp)
-            };
-            [disagreement(&pass.poses), disagreement(&odometry)]
-        });
+        .map(|c| [c.fused.disagreement(), c.odometry.disagreement()]);
     // Each kind of evidence can be worse at the refined poses while the other is better: on
     // a tour whose /odom drift is a turn about the object, the rays meet as well at /odom, and
     // only the floor shows the drift. A replay is rolled back when one is worse and the other

@@ -1,6 +1,8 @@
 //! One pass over the prepared frames: localise (when refining), blur, integrate, observe.
 
-use crate::fuse::floor::FloorMap;
+use std::collections::BTreeMap;
+
+use crate::fuse::floor::{FloorMap, FloorParams, FloorPatch};
 use crate::fuse::grid::Grid;
 use crate::fuse::motion::{Segment, segments_between};
 use crate::fuse::objects::{Object, ObjectParams, find_objects};
@@ -10,6 +12,7 @@ use crate::fuse::refine::{
 };
 use crate::types::geometry::{Iso3, yaw_of};
 
+use super::prepare::{PREPARE_CHUNK, floor_patch_of};
 use super::*;
 
 /// One pass over the prepared frames: its grid, the poses it fused with, the floor's state.
@@ -19,6 +22,39 @@ pub(super) struct Pass {
     pub(super) per_frame: Vec<FrameSummary>,
     /// The frame from which the floor term was dropped (it no longer fit), if it was.
     pub(super) floor_dropped_at: Option<usize>,
+    /// Every frame's floor at the poses this pass fused it with and at /odom's, when the
+    /// floor term is used: what the check of the refinement compares (built frame by frame,
+    /// so that no pass holds every frame's patch).
+    pub(super) floor_check: Option<FloorCheck>,
+}
+
+/// The floor of every frame, mapped at the fused poses and at /odom's.
+pub(super) struct FloorCheck {
+    pub(super) fused: FloorMap,
+    pub(super) odometry: FloorMap,
+}
+
+/// Margin of the check's map of the floor at the fused poses beyond /odom's reach, metres:
+/// its cells must not depend on where the refined poses end (they are known only then), so
+/// it is laid out from /odom's poses, this much wider. A correction beyond it would leave
+/// part of a frame's floor off the map; refinement's gate keeps corrections far below it
+/// (the largest on every session set: 0.7 m, a diverged replay that the check rolls back).
+pub const FLOOR_CHECK_MARGIN_M: f64 = 3.0;
+
+/// The floor map's extent for `poses` (x, y), `extra_m` beyond the floor term's reach.
+fn floor_bounds(
+    poses: impl Iterator<Item = Iso3>,
+    fp: &FloorParams,
+    extra_m: f64,
+) -> ([f64; 2], [f64; 2]) {
+    let reach = fp.max_range_m + 1.0 + extra_m;
+    let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+    for p in poses {
+        let t = p.translation.vector;
+        lo = [lo[0].min(t.x - reach), lo[1].min(t.y - reach)];
+        hi = [hi[0].max(t.x + reach), hi[1].max(t.y + reach)];
+    }
+    (lo, hi)
 }
 
 /// What a pass carries from frame to frame when it refines poses.
@@ -30,6 +66,12 @@ struct Tracker {
     pub(super) floor_failures: usize,
     /// Covariance of /odom's error since the first frame (the total correction's gate).
     pub(super) total_cov: nalgebra::Matrix3<f64>,
+    /// Floor patches made ahead of their frames (at most [`PREPARE_CHUNK`]), by frame index.
+    pub(super) floor_ahead: BTreeMap<usize, FloorPatch>,
+    /// The objects found after the last frame fused (the fuse's own rule): the next frame
+    /// localises against them once the rule's view count is reached, instead of finding
+    /// them again in the same grid.
+    pub(super) last_objects: Vec<Object>,
 }
 
 /// A replay stops using the floor once this many frames' floors did not fit the map at
@@ -48,27 +90,33 @@ pub(super) fn run_pass(
     rolled_back: Option<&Pass>,
 ) -> Result<Pass, ReplayError> {
     let fuser = Fuser::new(ctx.spec, ctx.prior, options.clone()).map_err(|e| ctx.grid_err(e))?;
+    let odometry = || ctx.prepared.iter().map(|p| p.odometry);
     let floor_map = floor_params(options).map(|fp| {
-        let reach = fp.max_range_m + 1.0;
-        let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
-        for p in &ctx.prepared {
-            let t = p.odometry.translation.vector;
-            lo = [lo[0].min(t.x - reach), lo[1].min(t.y - reach)];
-            hi = [hi[0].max(t.x + reach), hi[1].max(t.y + reach)];
-        }
+        let (lo, hi) = floor_bounds(odometry(), &fp, 0.0);
         FloorMap::new(lo, hi, fp)
+    });
+    let floor_check = floor_params(options).map(|fp| {
+        let (lo, hi) = floor_bounds(odometry(), &fp, 0.0);
+        let (wide_lo, wide_hi) = floor_bounds(odometry(), &fp, FLOOR_CHECK_MARGIN_M);
+        FloorCheck {
+            fused: FloorMap::new(wide_lo, wide_hi, fp),
+            odometry: FloorMap::new(lo, hi, fp),
+        }
     });
     let mut pass = Pass {
         fuser,
         poses: Vec::with_capacity(ctx.prepared.len()),
         per_frame: Vec::with_capacity(ctx.prepared.len()),
         floor_dropped_at: None,
+        floor_check,
     };
     let mut tracker = Tracker {
         seen: Vec::new(),
         floor_map,
         floor_failures: 0,
         total_cov: nalgebra::Matrix3::zeros(),
+        floor_ahead: BTreeMap::new(),
+        last_objects: Vec::new(),
     };
     for index in 0..ctx.prepared.len() {
         let undone = rolled_back
@@ -108,10 +156,11 @@ fn step(
 ) -> Result<(), ReplayError> {
     let p = &ctx.prepared[index];
     let data = &ctx.data;
+    let floor = floor_patch(ctx, options, tracker, index)?;
     let mut floor_unfit = false;
     let correction = match index.checked_sub(1) {
         Some(prev) if options.refine_poses => {
-            let (c, unfit) = localise_frame(ctx, options, pass, tracker, index, prev);
+            let (c, unfit) = localise_frame(ctx, options, pass, tracker, index, prev, &floor);
             floor_unfit = unfit;
             Some(c)
         }
@@ -130,8 +179,13 @@ fn step(
         ));
     }
     if let Some(map) = tracker.floor_map.as_mut().filter(|_| !floor_unfit) {
-        map.add(&p.floor, &odom_from_base);
+        map.add(&floor, &odom_from_base);
     }
+    if let Some(check) = pass.floor_check.as_mut() {
+        check.fused.add(&floor, &odom_from_base);
+        check.odometry.add(&floor, &p.odometry);
+    }
+    drop(floor);
     // A frame whose pose was measured (corrected, or found where it was predicted) is not
     // blurred: the measurement replaces the motion model's spread.
     let localised = options.refine_poses && correction.is_some_and(|c| c.outcome.measured());
@@ -144,6 +198,9 @@ fn step(
         localised,
     );
     let objects = find_objects(&pass.fuser.grid, &options.objects);
+    if options.refine_poses {
+        tracker.last_objects.clone_from(&objects);
+    }
     let cells_updated = pass.fuser.last_cells_updated;
     let max_probability = max_probability(&pass.fuser.grid);
     for o in observers.iter_mut() {
@@ -183,6 +240,32 @@ fn step(
     Ok(())
 }
 
+/// Frame `index`'s floor patch when the floor term is used (empty otherwise): made with the
+/// next frames', [`PREPARE_CHUNK`] at a time in parallel, when it is not made yet. Each is a
+/// pure function of its frame, so the result does not depend on the chunking or the threads.
+fn floor_patch(
+    ctx: &Context<'_>,
+    options: &FuseOptions,
+    tracker: &mut Tracker,
+    index: usize,
+) -> Result<FloorPatch, ReplayError> {
+    use rayon::prelude::*;
+    let Some(fp) = floor_params(options) else {
+        return Ok(FloorPatch::default());
+    };
+    if !tracker.floor_ahead.contains_key(&index) {
+        let end = (index + PREPARE_CHUNK).min(ctx.prepared.len());
+        let made: Vec<Result<FloorPatch, ReplayError>> = (index..end)
+            .into_par_iter()
+            .map(|i| floor_patch_of(ctx, &ctx.prepared[i], &fp))
+            .collect();
+        for (i, patch) in (index..end).zip(made) {
+            tracker.floor_ahead.insert(i, patch?);
+        }
+    }
+    Ok(tracker.floor_ahead.remove(&index).unwrap_or_default())
+}
+
 /// Localises frame `index` (refining; `prev` is the frame before it): propagates the total
 /// gate's covariance, searches, applies the verdict and keeps the floor's failures. Returns
 /// the correction and whether the frame's floor did not fit (then it is not added to the map).
@@ -193,6 +276,7 @@ fn localise_frame(
     tracker: &mut Tracker,
     index: usize,
     prev: usize,
+    floor: &FloorPatch,
 ) -> (Correction, bool) {
     let p = &ctx.prepared[index];
     let data = &ctx.data;
@@ -215,7 +299,7 @@ fn localise_frame(
         odometry: p.odometry,
         covariance: tracker.total_cov,
     };
-    let (c, predicted) = localise(ctx, options, pass, tracker, index, &gate);
+    let (c, predicted) = localise(ctx, options, pass, tracker, index, &gate, floor);
     pass.poses.push(c.apply(&predicted));
     if tracker.floor_map.is_some() && c.floor_fit.is_some_and(|f| f[0] < MIN_FLOOR_FIT) {
         // Nor is it added to the map: what it shows is not the floor the map holds.
@@ -307,6 +391,7 @@ fn localise(
     tracker: &Tracker,
     index: usize,
     gate: &TotalGate,
+    floor: &FloorPatch,
 ) -> (Correction, Iso3) {
     let (data, prepared, poses) = (&ctx.data, &ctx.prepared, &pass.poses);
     let clusters = &prepared[index].clusters;
@@ -339,10 +424,16 @@ fn localise(
             .min(u16::try_from(index).unwrap_or(u16::MAX)),
         ..options.objects
     };
-    let centroids: Vec<[f64; 3]> = find_objects(&pass.fuser.grid, &params)
-        .into_iter()
-        .map(|o| o.mass_centroid_m)
-        .collect();
+    // The grid is the one the previous step found `last_objects` in: with the same rule,
+    // the same objects.
+    let found;
+    let objects = if params == options.objects {
+        &tracker.last_objects
+    } else {
+        found = find_objects(&pass.fuser.grid, &params);
+        &found
+    };
+    let centroids: Vec<[f64; 3]> = objects.iter().map(|o| o.mass_centroid_m).collect();
     let predicted = moved(drift.as_ref(), &p.odometry);
     let correction = refine(&Localisation {
         landmarks: &landmarks(&centroids, &tracker.seen, data.camera.fx),
@@ -351,7 +442,7 @@ fn localise(
         base_from_camera: &p.mount,
         predicted: &predicted,
         cov: &cov,
-        floor: tracker.floor_map.as_ref().map(|m| (m, &p.floor)),
+        floor: tracker.floor_map.as_ref().map(|m| (m, floor)),
         gate: Some(gate),
     });
     (correction, predicted)

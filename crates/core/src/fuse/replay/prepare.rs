@@ -1,5 +1,6 @@
 //! Preparing a replay: the session read, the options checked against it, and every frame
-//! that can be fused classified once (with its floor patch and detections, when refining).
+//! that can be fused classified once (with its detections, when refining; floor patches are
+//! made by the pass, a few frames ahead of their use).
 
 use crate::fuse::floor::{FloorParams, FloorPatch, floor_patch};
 use crate::fuse::grid::{GridError, GridSpec, TileEvidence, logit};
@@ -18,8 +19,6 @@ pub(super) struct Prepared {
     /// The camera mount at the frame's stamp (base_from_camera).
     pub(super) mount: Iso3,
     pub(super) probs: TileProbs,
-    /// The frame's floor, when refining with the floor.
-    pub(super) floor: FloorPatch,
     /// Its detection clusters (pixels), when refining.
     pub(super) clusters: Vec<[f64; 2]>,
 }
@@ -62,7 +61,7 @@ impl Context<'_> {
 }
 
 /// Reads the session, checks the options against it, and classifies every frame that can be
-/// fused (the floor patch and detection clusters too, when refining).
+/// fused (the detection clusters too, when refining).
 pub(super) fn prepare<'a>(
     reader: &'a SessionReader,
     classifier: &dyn FrameClassifier,
@@ -191,8 +190,8 @@ fn fusable_frames(ctx: &mut Context<'_>) -> Vec<(FrameRef, Iso3, Iso3)> {
     todo
 }
 
-/// One frame decoded and classified, with its floor patch and detection clusters when
-/// refining.
+/// One frame decoded and classified, with its detection clusters when refining (its floor
+/// patch is made by the pass that uses it: [`floor_patch_of`]).
 fn prepare_frame(
     ctx: &Context<'_>,
     classifier: &dyn FrameClassifier,
@@ -201,24 +200,6 @@ fn prepare_frame(
 ) -> Result<Prepared, ReplayError> {
     let image = decode_frame(ctx.reader, &ctx.data, fr)?;
     let probs = classifier.classify(&image);
-    let floor = match &floor_params(options) {
-        Some(fp) => {
-            // The object is not floor: its detections (the tiles the landmarks use) are
-            // left out; they would pull the pose by their own projection onto the floor
-            // behind the object, which differs from every view (measured: the largest move
-            // of exact odometry falls from 0.060 to 0.048 m).
-            let t = probs.tile_px.max(1);
-            let min_logit = logit(ctx.prior) + f64::from(DETECTION_DELTA);
-            let not_floor = |u: u32, v: u32| {
-                let (r, c) = ((v / t) as usize, (u / t) as usize);
-                r < probs.rows
-                    && c < probs.cols
-                    && logit(f64::from(probs.p[r * probs.cols + c])) >= min_logit
-            };
-            floor_patch(&image, &ctx.data.camera, mount, fp, not_floor)
-        }
-        None => FloorPatch::default(),
-    };
     let clusters = if options.refine_poses {
         detection_clusters(&TileEvidence::from_probabilities(
             probs.rows,
@@ -235,9 +216,39 @@ fn prepare_frame(
         odometry: *odometry,
         mount: *mount,
         probs,
-        floor,
         clusters,
     })
+}
+
+/// The floor patch of a prepared frame: decoded again, so that a replay holds the patches
+/// of the frames it is fusing, not of the whole session (a patch is ~40 kB, most of what a
+/// frame kept: 1000 frames held 40 MB, growing with the session); decoding costs ~1 % of a
+/// refined replay. The object is not floor: its detections (the tiles the landmarks use)
+/// are left out; they would pull the pose by their own projection onto the floor behind the
+/// object, which differs from every view (measured: the largest move of exact odometry
+/// falls from 0.060 to 0.048 m).
+pub(super) fn floor_patch_of(
+    ctx: &Context<'_>,
+    p: &Prepared,
+    fp: &FloorParams,
+) -> Result<FloorPatch, ReplayError> {
+    let image = decode_frame(ctx.reader, &ctx.data, &p.frame)?;
+    let probs = &p.probs;
+    let t = probs.tile_px.max(1);
+    let min_logit = logit(ctx.prior) + f64::from(DETECTION_DELTA);
+    let not_floor = |u: u32, v: u32| {
+        let (r, c) = ((v / t) as usize, (u / t) as usize);
+        r < probs.rows
+            && c < probs.cols
+            && logit(f64::from(probs.p[r * probs.cols + c])) >= min_logit
+    };
+    Ok(floor_patch(
+        &image,
+        &ctx.data.camera,
+        &p.mount,
+        fp,
+        not_floor,
+    ))
 }
 
 /// Decodes a frame, checks its size against CameraInfo and rectifies it when the lens is
