@@ -66,7 +66,7 @@ const WORLD_FRAME: &str = "tf#/world";
 /// frames, so a long replay streamed all of them every frame took twice its replay time and
 /// wrote 0.4 MB a frame. The viewer shows the latest snapshot at any time; the robot, the
 /// camera frame, the pyramids, the objects and the plots stay per frame.
-const SNAPSHOTS: usize = 100;
+const SNAPSHOTS: usize = 50;
 /// One line per refined frame: the verdict and its numbers; the rollback, when it happens.
 const VERDICT_LOG: &str = "refinement";
 

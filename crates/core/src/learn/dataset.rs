@@ -175,25 +175,12 @@ pub fn load_session(
 
 /// Hex SHA-256 of the file at `path`, read in blocks (the file is never all in memory).
 fn file_sha256(path: &Path) -> Result<String, SessionError> {
-    use sha2::{Digest, Sha256};
-    use std::io::Read;
-    let io = |source| SessionError::Io {
-        path: path.to_owned(),
-        source,
-    };
-    let mut file = std::fs::File::open(path).map_err(io)?;
-    let mut hasher = Sha256::new();
-    let mut block = vec![0u8; 1 << 20];
-    loop {
-        let n = match file.read(&mut block) {
-            Ok(0) => break,
-            Ok(n) => n,
-            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
-            Err(e) => return Err(io(e)),
-        };
-        hasher.update(&block[..n]);
-    }
-    Ok(crate::types::digest::hex(&hasher.finalize()))
+    std::fs::File::open(path)
+        .and_then(crate::types::digest::sha256_hex_of_reader)
+        .map_err(|source| SessionError::Io {
+            path: path.to_owned(),
+            source,
+        })
 }
 
 /// Whether the tile at pixel (x, y) with side `tile_px` lies fully inside one rectangle.

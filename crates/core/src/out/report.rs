@@ -79,7 +79,7 @@ pub struct Report {
 
 /// SHA-256 of a file, hex.
 pub fn file_sha256(path: &Path) -> std::io::Result<String> {
-    Ok(crate::types::digest::sha256_hex(&std::fs::read(path)?))
+    crate::types::digest::sha256_hex_of_reader(std::fs::File::open(path)?)
 }
 
 impl Report {

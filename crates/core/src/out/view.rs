@@ -7,6 +7,7 @@
 //! on the thread count.
 
 use nalgebra::Point3;
+use rayon::prelude::*;
 use sha2::{Digest, Sha256};
 
 use crate::fuse::grid::{Grid, sigmoid};
@@ -117,38 +118,42 @@ impl PosteriorTable {
 /// seen by at least `min_views` frames.
 pub fn summarize_grid(grid: &Grid, min_posterior: f32, min_views: u16) -> GridSummary {
     let [nx, ny, nz] = grid.spec.dims;
+    // Slabs of x in fixed groups, summarised in parallel and combined in slab order: the
+    // grouping does not depend on the thread count, so neither do the sums.
+    let starts: Vec<usize> = (0..nx).step_by(SUMMARY_SLABS).collect();
+    let parts: Vec<SlabSummary> = starts
+        .par_iter()
+        .map(|&i0| {
+            summarize_slabs(
+                grid,
+                i0..(i0 + SUMMARY_SLABS).min(nx),
+                min_posterior,
+                min_views,
+            )
+        })
+        .collect();
     let mut along_x = vec![0f64; ny * nz];
     let mut along_y = vec![0f64; nx * nz];
     let mut along_z = vec![0f64; nx * ny];
     let mut cells = Vec::new();
     let mut max_l = f32::NEG_INFINITY;
     let mut entropy = 0.0;
-    let table = POSTERIOR_TABLE.get_or_init(PosteriorTable::new);
-    // A cell can be shown only if its log-odds come near the threshold's: the exact sigmoid
-    // decides for those few (the margin covers the rounding of logit and of the f32 cast).
-    let near_threshold = (crate::fuse::grid::logit(f64::from(min_posterior)) - 1e-3) as f32;
-    // One sequential pass in index order (the sums do not depend on the thread count); the
-    // table makes each cell a few multiplications, so no buffer of per-cell values is needed.
-    for i in 0..nx {
-        for j in 0..ny {
-            for k in 0..nz {
-                let idx = grid.spec.index(i, j, k);
-                let l = grid.log_odds[idx];
-                max_l = max_l.max(l);
-                let (p, h) = table.get(l);
-                entropy += h;
-                let (rz, ry) = (nz - 1 - k, ny - 1 - j);
-                along_x[rz * ny + j] += p;
-                along_y[rz * nx + i] += p;
-                along_z[ry * nx + i] += p;
-                if l > near_threshold && grid.views[idx] >= min_views {
-                    let p = sigmoid(f64::from(l)) as f32;
-                    if p > min_posterior {
-                        cells.push(([i as i32, j as i32, k as i32], p));
-                    }
-                }
-            }
+    for (part, &i0) in parts.into_iter().zip(&starts) {
+        max_l = max_l.max(part.max_l);
+        entropy += part.entropy;
+        for (a, v) in along_x.iter_mut().zip(&part.along_x) {
+            *a += v;
         }
+        let w = part.width;
+        for row in 0..nz {
+            along_y[row * nx + i0..row * nx + i0 + w]
+                .copy_from_slice(&part.along_y[row * w..(row + 1) * w]);
+        }
+        for row in 0..ny {
+            along_z[row * nx + i0..row * nx + i0 + w]
+                .copy_from_slice(&part.along_z[row * w..(row + 1) * w]);
+        }
+        cells.extend(part.cells);
     }
     let n = grid.spec.cells().max(1) as f64;
     let mean = |v: Vec<f64>, d: usize| v.into_iter().map(|s| (s / d as f64) as f32).collect();
@@ -160,6 +165,66 @@ pub fn summarize_grid(grid: &Grid, min_posterior: f32, min_views: u16) -> GridSu
         along_y: mean(along_y, ny),
         along_z: mean(along_z, nz),
     }
+}
+
+/// Slabs of x per parallel part of [`summarize_grid`].
+const SUMMARY_SLABS: usize = 8;
+
+/// A [`GridSummary`]'s sums over a few slabs of x: `along_y` and `along_z` only for those
+/// slabs (`width` columns), `along_x` over them.
+struct SlabSummary {
+    width: usize,
+    max_l: f32,
+    entropy: f64,
+    along_x: Vec<f64>,
+    along_y: Vec<f64>,
+    along_z: Vec<f64>,
+    cells: Vec<([i32; 3], f32)>,
+}
+
+fn summarize_slabs(
+    grid: &Grid,
+    slabs: std::ops::Range<usize>,
+    min_posterior: f32,
+    min_views: u16,
+) -> SlabSummary {
+    let [_, ny, nz] = grid.spec.dims;
+    let (i0, width) = (slabs.start, slabs.len());
+    let table = POSTERIOR_TABLE.get_or_init(PosteriorTable::new);
+    // A cell can be shown only if its log-odds come near the threshold's: the exact sigmoid
+    // decides for those few (the margin covers the rounding of logit and of the f32 cast).
+    let near_threshold = (crate::fuse::grid::logit(f64::from(min_posterior)) - 1e-3) as f32;
+    let mut s = SlabSummary {
+        width,
+        max_l: f32::NEG_INFINITY,
+        entropy: 0.0,
+        along_x: vec![0.0; ny * nz],
+        along_y: vec![0.0; width * nz],
+        along_z: vec![0.0; width * ny],
+        cells: Vec::new(),
+    };
+    for i in slabs {
+        for j in 0..ny {
+            for k in 0..nz {
+                let idx = grid.spec.index(i, j, k);
+                let l = grid.log_odds[idx];
+                s.max_l = s.max_l.max(l);
+                let (p, h) = table.get(l);
+                s.entropy += h;
+                let (rz, ry) = (nz - 1 - k, ny - 1 - j);
+                s.along_x[rz * ny + j] += p;
+                s.along_y[rz * width + i - i0] += p;
+                s.along_z[ry * width + i - i0] += p;
+                if l > near_threshold && grid.views[idx] >= min_views {
+                    let p = sigmoid(f64::from(l)) as f32;
+                    if p > min_posterior {
+                        s.cells.push(([i as i32, j as i32, k as i32], p));
+                    }
+                }
+            }
+        }
+    }
+    s
 }
 
 /// Tile probabilities as one f32 per image pixel (0 outside whole tiles: "no value").
@@ -418,6 +483,41 @@ mod tests {
         );
         // Along x (y wide = 1, z up): k = 1 -> (0.5 + 0.8) / 2, k = 0 -> (0.8 + 0.5) / 2.
         assert!(s.along_x.iter().all(|v| (v - 0.65).abs() < 1e-6));
+    }
+
+    #[test]
+    fn the_slabbed_summary_is_the_cell_by_cell_one() {
+        // 19 slabs of x: two full groups of eight and a partial one.
+        let spec = GridSpec {
+            origin_m: [0.0; 3],
+            voxel_size_m: 1.0,
+            dims: [19, 5, 3],
+        };
+        let mut grid = Grid::new(spec, 0.1).unwrap();
+        for idx in 0..spec.cells() {
+            grid.log_odds[idx] = ((idx * 37) % 23) as f32 * 0.5 - 5.0;
+            grid.views[idx] = (idx % 4) as u16;
+        }
+        let s = summarize_grid(&grid, 0.5, 2);
+        let [nx, ny, nz] = spec.dims;
+        let (mut along_z, mut cells, mut h) = (vec![0f64; nx * ny], Vec::new(), 0.0);
+        for idx in 0..spec.cells() {
+            let [i, j, k] = spec.ijk(idx);
+            let p = sigmoid(f64::from(grid.log_odds[idx]));
+            h += binary_entropy_bits(p);
+            along_z[(ny - 1 - j) * nx + i] += p / nz as f64;
+            if p as f32 > 0.5 && grid.views[idx] >= 2 {
+                cells.push(([i as i32, j as i32, k as i32], p as f32));
+            }
+        }
+        assert_eq!(s.cells, cells);
+        assert!((s.mean_entropy_bits - h / spec.cells() as f64).abs() < 1e-5);
+        assert!(
+            s.along_z
+                .iter()
+                .zip(&along_z)
+                .all(|(a, b)| (f64::from(*a) - b).abs() < 1e-5)
+        );
     }
 
     #[test]

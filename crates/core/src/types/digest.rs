@@ -15,6 +15,23 @@ pub fn hex(bytes: &[u8]) -> String {
     s
 }
 
+/// Hex SHA-256 of everything `reader` yields, read in 1 MiB blocks: a session file of any
+/// size is hashed without being held in memory.
+pub fn sha256_hex_of_reader(mut reader: impl std::io::Read) -> std::io::Result<String> {
+    let mut hasher = Sha256::new();
+    let mut block = vec![0u8; 1 << 20];
+    loop {
+        let n = match reader.read(&mut block) {
+            Ok(0) => break,
+            Ok(n) => n,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
+            Err(e) => return Err(e),
+        };
+        hasher.update(&block[..n]);
+    }
+    Ok(hex(&hasher.finalize()))
+}
+
 /// Hex SHA-256 of `bytes`.
 pub fn sha256_hex(bytes: &[u8]) -> String {
     hex(&Sha256::digest(bytes))
@@ -23,6 +40,16 @@ pub fn sha256_hex(bytes: &[u8]) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_blockwise_hash_is_the_hash_of_the_bytes() {
+        // Over two blocks and a part, so block boundaries are crossed.
+        let bytes: Vec<u8> = (0..(5u32 << 19)).map(|i| (i * 7 + i / 251) as u8).collect();
+        assert_eq!(
+            sha256_hex_of_reader(&bytes[..]).unwrap(),
+            sha256_hex(&bytes)
+        );
+    }
 
     #[test]
     fn hex_and_the_sha256_of_abc() {
