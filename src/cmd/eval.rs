@@ -26,11 +26,22 @@ pub struct Args {
     /// model's object, else every object on /labels).
     #[arg(long)]
     pub object: Option<String>,
+    /// No progress spinner (there is none anyway when stderr is not a terminal).
+    #[arg(short, long)]
+    pub quiet: bool,
     #[command(flatten)]
     pub topics: TopicArgs,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
+    let spinner = super::progress::stage_spinner(args.quiet);
+    spinner.set_message(format!("reading {}", args.session.display()));
+    let result = evaluate_reports(&args);
+    spinner.finish_and_clear();
+    result
+}
+
+fn evaluate_reports(args: &Args) -> anyhow::Result<()> {
     let reader = SessionReader::open(&args.session, args.topics.topics()?)
         .with_context(|| format!("eval {}", args.session.display()))?;
     let mut gt = None;
@@ -48,7 +59,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     let track = objloc_core::types::track::PoseTrack::new(poses);
     let Some(gt) = gt else {
-        return super::eval_rects::run(&reader, &args);
+        return super::eval_rects::run(&reader, args);
     };
     let truth = true_objects(&gt);
     let mut evals = Vec::new();
@@ -61,7 +72,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             &track,
         ));
     }
-    print_evals(&args, &evals)
+    print_evals(args, &evals)
 }
 
 /// A fuse report of this objloc's version.

@@ -20,12 +20,17 @@ pub struct Args {
     /// section (or with a truncated file) the full check runs, and the output says so.
     #[arg(long)]
     quick: bool,
+    /// No progress spinner (there is none anyway when stderr is not a terminal).
+    #[arg(short, long)]
+    quiet: bool,
     #[command(flatten)]
     topics: TopicArgs,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     let topics = args.topics.topics()?;
+    let spinner = super::progress::stage_spinner(args.quiet);
+    spinner.set_message(format!("reading {}", args.session.display()));
     let (text, json, warnings) = if args.quick {
         let q =
             objloc_core::io::inspect::summarize_quick(&args.session, topics).context("inspect")?;
@@ -42,6 +47,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             s.warnings.clone(),
         )
     };
+    spinner.finish_and_clear();
     if args.json {
         println!("{json}");
         for w in &warnings {
