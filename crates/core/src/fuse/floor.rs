@@ -209,11 +209,18 @@ impl FloorMap {
         self.frames
     }
 
-    /// Bilinear corners and weights of a point, in cell-centre coordinates.
+    /// Bilinear corners and weights of a point of `odom`.
     #[inline]
     fn corners(&self, p: &[f64; 2]) -> Option<([usize; 4], [f64; 4])> {
         let fx = (p[0] - self.origin_m[0]) / self.params.cell_m - 0.5;
         let fy = (p[1] - self.origin_m[1]) / self.params.cell_m - 0.5;
+        self.corners_at(fx, fy)
+    }
+
+    /// Bilinear corners and weights at cell-centre coordinates (`fx`, `fy`).
+    #[inline]
+    fn corners_at(&self, fx: f64, fy: f64) -> Option<([usize; 4], [f64; 4])> {
+        // Negated so that NaN is rejected too.
         if !(fx >= 0.0 && fy >= 0.0) {
             return None;
         }
@@ -312,16 +319,9 @@ impl FloorMap {
     /// colour (3) and variance, and the seen cells' total weight, if that is at least half.
     #[inline]
     fn lookup(&self, q: &[f64; 2]) -> Option<[f64; 5]> {
-        let (idx, w) = self.corners(q)?;
-        let mut acc = [0.0f64; 5];
-        for (&i, &wi) in idx.iter().zip(&w) {
-            // An unseen cell is all zeros: it adds +0.0 to sums of non-negative terms, which
-            // leaves them as they are, bit for bit.
-            for (a, &v) in acc.iter_mut().zip(&self.stats[i]) {
-                *a += wi * v;
-            }
-        }
-        (acc[4] >= 0.5).then_some(acc)
+        let fx = (q[0] - self.origin_m[0]) / self.params.cell_m - 0.5;
+        let fy = (q[1] - self.origin_m[1]) / self.params.cell_m - 0.5;
+        self.lookup_cell(fx, fy)
     }
 
     /// Of the patch's cells that land on floor the map has seen at a robot pose, the
@@ -406,34 +406,12 @@ impl FloorMap {
     /// [`FloorMap::lookup`] at cell-centre coordinates (`fx`, `fy`).
     #[inline]
     fn lookup_cell(&self, fx: f64, fy: f64) -> Option<[f64; 5]> {
-        // Negated so that NaN is rejected too.
-        if !(fx >= 0.0 && fy >= 0.0) {
-            return None;
-        }
-        let (x0, y0) = (fx as usize, fy as usize);
-        if x0 + 1 >= self.nx || y0 + 1 >= self.ny {
-            return None;
-        }
-        let (sx, sy) = (fx - x0 as f64, fy - y0 as f64);
-        let i = y0 * self.nx + x0;
-        let (lo, hi) = (
-            &self.stats[i..i + 2],
-            &self.stats[i + self.nx..i + self.nx + 2],
-        );
-        let w = [
-            (1.0 - sx) * (1.0 - sy),
-            sx * (1.0 - sy),
-            (1.0 - sx) * sy,
-            sx * sy,
-        ];
+        let (idx, w) = self.corners_at(fx, fy)?;
         let mut acc = [0.0f64; 5];
-        for (cell, wi) in [
-            (&lo[0], w[0]),
-            (&lo[1], w[1]),
-            (&hi[0], w[2]),
-            (&hi[1], w[3]),
-        ] {
-            for (a, &v) in acc.iter_mut().zip(cell) {
+        for (&i, &wi) in idx.iter().zip(&w) {
+            // An unseen cell is all zeros: it adds +0.0 to sums of non-negative terms, which
+            // leaves them as they are, bit for bit.
+            for (a, &v) in acc.iter_mut().zip(&self.stats[i]) {
                 *a += wi * v;
             }
         }
