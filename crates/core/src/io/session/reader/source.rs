@@ -126,13 +126,7 @@ impl SessionReader {
         let segment = self.segments.get(meta.segment()).copied();
         match segment {
             Some(Segment::Payload(span)) => {
-                let bytes = self
-                    .source
-                    .read_at(span.offset_bytes, span.len_bytes)
-                    .map_err(|source| SessionError::Io {
-                        path: self.path.clone(),
-                        source,
-                    })?;
+                let bytes = self.read_span(span)?;
                 Ok(f(&bytes))
             }
             Some(Segment::Chunk(span)) => {
@@ -167,6 +161,16 @@ impl SessionReader {
         }
     }
 
+    /// The bytes of `span`, read from the source again.
+    fn read_span(&self, span: ByteSpan) -> Result<Vec<u8>, SessionError> {
+        self.source
+            .read_at(span.offset_bytes, span.len_bytes)
+            .map_err(|source| SessionError::Io {
+                path: self.path.clone(),
+                source,
+            })
+    }
+
     /// Reads the chunk record at `span` again and decompresses it; `meta`, a message in it,
     /// names it in errors.
     fn load_chunk(
@@ -174,13 +178,7 @@ impl SessionReader {
         span: ByteSpan,
         meta: &MessageMeta,
     ) -> Result<ChunkPayloads, SessionError> {
-        let record = self
-            .source
-            .read_at(span.offset_bytes, span.len_bytes)
-            .map_err(|source| SessionError::Io {
-                path: self.path.clone(),
-                source,
-            })?;
+        let record = self.read_span(span)?;
         let body_len = span.len_bytes - OPCODE_LEN_BYTES;
         if record.first() != Some(&op::CHUNK)
             || record.get(1..9) != Some(&body_len.to_le_bytes()[..])
