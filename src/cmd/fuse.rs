@@ -13,7 +13,7 @@ use crate::viz::{
 };
 use objloc_core::fuse::motion::BlurMode;
 use objloc_core::fuse::objects::ObjectParams;
-use objloc_core::fuse::replay::{FuseOptions, Outcome, PoseSource, SessionFit, replay};
+use objloc_core::fuse::replay::{FuseOptions, Locate, Outcome, PoseSource, SessionFit, replay};
 use objloc_core::io::session::SessionReader;
 use objloc_core::learn::model::Model;
 use objloc_core::out::report::{Report, file_sha256};
@@ -88,6 +88,11 @@ pub struct FuseArgs {
     /// does not see a flat floor around the robot).
     #[arg(long, conflicts_with = "no_refine_poses")]
     pub no_floor: bool,
+    /// Where an object's location comes from: the centre of its `extent` in the grid, or
+    /// the centre triangulated from its `detections`' boxes. Default: the extent for a
+    /// ground robot's session (with /cmd_vel), the detections otherwise (docs/realdata.md).
+    #[arg(long, value_enum, value_name = "FROM")]
+    pub locate: Option<Locate>,
     /// Frames that must have seen a cell before it can belong to an object.
     #[arg(long, default_value_t = ObjectParams::default().min_views)]
     pub min_views: u16,
@@ -161,10 +166,12 @@ impl FuseArgs {
             poses: self.poses,
             refine_poses: !self.no_refine_poses,
             refine_floor: !self.no_floor,
+            locate: self.locate.unwrap_or_default(),
             fit: SessionFit {
                 bounds: self.bounds.is_none(),
                 voxel: self.voxel.is_none(),
                 refinement: !self.refine_poses && !self.no_refine_poses,
+                locate: self.locate.is_none(),
             },
         }
         .normalised()
@@ -317,6 +324,16 @@ pub fn print_summary(f: &Fused) {
             o.peak_probability,
             o.mean_probability
         );
+        if let (Some(d), Some(e)) = (&o.from_detections, &o.extent_centre_m) {
+            println!(
+                "  located from {} frames' detection boxes (rays {:.1} deg apart at most, rms miss {:.4}{m}); the extent's centre was ({:.3}, {:.3}, {:.3})",
+                d.rays, d.spread_deg, d.rms_miss_m, e[0], e[1], e[2]
+            );
+        } else if r.options.locate == Locate::Detections {
+            println!(
+                "  located at the extent's centre: its detections do not triangulate (fewer than 3 whole views, rays from one direction, or a point outside the object)"
+            );
+        }
     }
     for c in &r.fitted {
         println!("fitted to the session: {c}");

@@ -1,13 +1,15 @@
 //! The fuser: the deterministic replay of one session ([`replay`], the only module here that
 //! reads a session) driving the state it updates: the belief grid ([`grid`]), the motion
 //! model's blur ([`motion`]), pose refinement against landmarks ([`refine`]) and the floor
-//! ([`floor`]), and the objects found in the belief ([`objects`]).
+//! ([`floor`]), the objects found in the belief ([`objects`]) and, where the grid cannot
+//! bound them, their centres triangulated from their detections ([`locate`]).
 //!
 //! May import: [`crate::types`], [`crate::learn`] and (the replay only) [`crate::io`].
 //! No clock, no unseeded randomness, no unordered iteration.
 
 pub mod floor;
 pub mod grid;
+pub mod locate;
 pub mod motion;
 pub mod objects;
 pub mod refine;

@@ -82,6 +82,14 @@ pub struct Object {
     pub mean_probability: f64,
     /// Highest log-odds in the component (probabilities saturate at 1 in print).
     pub peak_log_odds: f64,
+    /// Set when `centroid_m` is the centre triangulated from the boxes of the object's
+    /// detections rather than the centre of its extent (a session with no floor under the
+    /// grid: [`crate::fuse::locate`]); how the rays met.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub from_detections: Option<crate::fuse::locate::RayCentre>,
+    /// The centre of the extent that `from_detections` replaced, metres.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub extent_centre_m: Option<[f64; 3]>,
 }
 
 /// Fraction of an object's probability mass left out at each end of each axis when its
@@ -319,6 +327,8 @@ fn summarize(grid: &Grid, members: &[usize]) -> Object {
         peak_probability: sigmoid(peak_l),
         mean_probability: w / members.len() as f64,
         peak_log_odds: peak_l,
+        from_detections: None,
+        extent_centre_m: None,
     }
 }
 

@@ -448,6 +448,8 @@ mod tests {
             peak_probability: 0.99,
             mean_probability: 0.9,
             peak_log_odds: 5.0,
+            from_detections: None,
+            extent_centre_m: None,
         }
     }
 

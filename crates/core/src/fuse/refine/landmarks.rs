@@ -35,6 +35,35 @@ pub const MIN_RAY_SPREAD: f64 = 0.034;
 /// legs to its seat, but it also merged two chairs standing one behind the other in the
 /// two-chairs tour, whose merged centroid then pulled the pose 0.1 rad off.
 pub fn detection_clusters(ev: &TileEvidence) -> Vec<[f64; 2]> {
+    detections(ev).iter().map(|d| d.centroid_px).collect()
+}
+
+/// One 8-connected group of detection tiles ([`DETECTION_DELTA`]) in an image.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Detection {
+    /// Evidence-weighted centroid of its tiles' centres, pixels (u, v).
+    pub centroid_px: [f64; 2],
+    /// Min corner (u, v) of the box around its tiles, pixels (a tile's edge).
+    pub box_min_px: [f64; 2],
+    /// Max corner (u, v) of that box, pixels.
+    pub box_max_px: [f64; 2],
+    /// Whether a tile of it lies in the first or last row or column of tiles: the object may
+    /// run past the image's edge, so the box's centre is not its projection.
+    pub at_border: bool,
+}
+
+impl Detection {
+    /// Centre of the box, pixels (u, v).
+    pub fn box_centre_px(&self) -> [f64; 2] {
+        [
+            0.5 * (self.box_min_px[0] + self.box_max_px[0]),
+            0.5 * (self.box_min_px[1] + self.box_max_px[1]),
+        ]
+    }
+}
+
+/// The groups of detection tiles in `ev`, in row-major order of their first tile.
+pub fn detections(ev: &TileEvidence) -> Vec<Detection> {
     let tile = f64::from(ev.tile_px);
     let (rows, cols) = (ev.rows, ev.cols);
     let hot = |t: usize| ev.delta[t] >= DETECTION_DELTA;
@@ -47,12 +76,15 @@ pub fn detection_clusters(ev: &TileEvidence) -> Vec<[f64; 2]> {
         seen[start] = true;
         let mut stack = vec![start];
         let (mut w, mut su, mut sv) = (0.0f64, 0.0f64, 0.0f64);
+        let (mut lo, mut hi) = ([usize::MAX; 2], [0usize; 2]);
         while let Some(t) = stack.pop() {
             let (r, c) = (t / cols, t % cols);
             let d = f64::from(ev.delta[t]);
             w += d;
             su += d * (c as f64 + 0.5) * tile;
             sv += d * (r as f64 + 0.5) * tile;
+            lo = [lo[0].min(c), lo[1].min(r)];
+            hi = [hi[0].max(c), hi[1].max(r)];
             for nr in r.saturating_sub(1)..=(r + 1).min(rows - 1) {
                 for nc in c.saturating_sub(1)..=(c + 1).min(cols - 1) {
                     let n = nr * cols + nc;
@@ -63,7 +95,12 @@ pub fn detection_clusters(ev: &TileEvidence) -> Vec<[f64; 2]> {
                 }
             }
         }
-        out.push([su / w, sv / w]);
+        out.push(Detection {
+            centroid_px: [su / w, sv / w],
+            box_min_px: [lo[0] as f64 * tile, lo[1] as f64 * tile],
+            box_max_px: [(hi[0] + 1) as f64 * tile, (hi[1] + 1) as f64 * tile],
+            at_border: lo[0] == 0 || lo[1] == 0 || hi[0] + 1 == cols || hi[1] + 1 == rows,
+        });
     }
     out
 }

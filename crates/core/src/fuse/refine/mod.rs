@@ -46,8 +46,9 @@ mod landmarks;
 mod search;
 
 pub use landmarks::{
-    Consistency, DETECTION_DELTA, GATE_M, GATE_PX, Landmark, MAX_RAY_CHI2, MIN_RAY_SPREAD,
-    SIGMA_U_PX, SIGMA_V_PX, Sighting, detection_clusters, landmarks, sightings,
+    Consistency, DETECTION_DELTA, Detection, GATE_M, GATE_PX, Landmark, MAX_RAY_CHI2,
+    MIN_RAY_SPREAD, SIGMA_U_PX, SIGMA_V_PX, Sighting, detection_clusters, detections, landmarks,
+    sightings,
 };
 pub use search::{MIN_PROMINENCE, MIN_SEPARATION};
 

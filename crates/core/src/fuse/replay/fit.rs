@@ -25,6 +25,10 @@ pub struct SessionFit {
     pub voxel: bool,
     /// Pose refinement and its floor term.
     pub refinement: bool,
+    /// Where objects' locations come from ([`Locate`]); reports written before it existed
+    /// read as not chosen.
+    #[serde(default)]
+    pub locate: bool,
 }
 
 impl SessionFit {
@@ -33,6 +37,7 @@ impl SessionFit {
         bounds: true,
         voxel: true,
         refinement: true,
+        locate: true,
     };
 }
 
@@ -72,6 +77,15 @@ pub fn fit_to_session(options: &FuseOptions, data: &SessionData) -> Fitted {
         out.refine_floor = false;
         choices.push(
             "no floor term: without /cmd_vel the camera is not a ground robot's fixed mount"
+                .to_owned(),
+        );
+    }
+    if options.fit.locate && out.locate == Locate::Extent {
+        out.locate = Locate::Detections;
+        choices.push(
+            "object locations triangulated from their detections' boxes: without /cmd_vel no \
+             floor closes the grid below the object, and cells hidden under it in every view \
+             keep its evidence (--locate extent for the centre of the extent)"
                 .to_owned(),
         );
     }

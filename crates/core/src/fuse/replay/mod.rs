@@ -41,10 +41,11 @@ use prepare::{Context, Prepared, decode_frame, floor_params, prepare};
 
 use thiserror::Error;
 
-use crate::fuse::grid::{Grid, GridError};
+use crate::fuse::grid::{Grid, GridError, TileEvidence};
+use crate::fuse::locate::{View, ray_centre};
 use crate::fuse::motion::{BlurMode, Segment};
 use crate::fuse::objects::{Object, ObjectParams, find_objects_with_cells};
-use crate::fuse::refine::Correction;
+use crate::fuse::refine::{Correction, detections};
 use crate::io::session::{At, SessionError, SessionReader};
 use crate::types::geometry::Iso3;
 use crate::types::image::Rgb8;
@@ -138,10 +139,40 @@ pub struct FuseOptions {
     /// (see [`crate::fuse::floor`]). Absent from reports written before it existed, which did not.
     #[serde(default)]
     pub refine_floor: bool,
+    /// Where an object's location comes from: the centre of its extent in the grid, or the
+    /// centre triangulated from its detections' boxes ([`crate::fuse::locate`]; the session
+    /// chooses it when the grid has no floor below the object). Reports written before it
+    /// existed read as the extent.
+    #[serde(default)]
+    pub locate: Locate,
     /// Which of these the session may choose (see [`fit_to_session`]); reports written before
     /// it existed read as choosing nothing.
     #[serde(default)]
     pub fit: SessionFit,
+}
+
+/// Where an object's location (`centroid_m`) comes from (`fuse --locate`).
+#[derive(
+    Debug,
+    Clone,
+    Copy,
+    PartialEq,
+    Eq,
+    Default,
+    serde::Serialize,
+    serde::Deserialize,
+    clap::ValueEnum,
+)]
+#[serde(rename_all = "kebab-case")]
+pub enum Locate {
+    /// The centre of the object's extent in the grid (the default for a ground robot's
+    /// session, whose grid starts at the floor the object stands on).
+    #[default]
+    Extent,
+    /// The centre triangulated from the boxes of its detections, one per frame that sees it
+    /// whole; the extent's centre where they do not agree on one (fewer than three frames,
+    /// rays from one direction, a point outside the object).
+    Detections,
 }
 
 /// Where the replay takes the robot poses of frames from (`--poses`).
@@ -170,6 +201,7 @@ impl Default for FuseOptions {
             poses: PoseSource::Odometry,
             refine_poses: true,
             refine_floor: true,
+            locate: Locate::Extent,
             fit: SessionFit::ALL,
         }
     }
@@ -363,7 +395,10 @@ fn finish(ctx: Context<'_>, pass: Pass, refinement: Option<RefinementCheck>) -> 
         .flat_map(|(_, c)| c.iter().copied())
         .collect();
     object_cells.sort_unstable();
-    let objects = with_cells.into_iter().map(|(o, _)| o).collect();
+    let mut objects: Vec<Object> = with_cells.into_iter().map(|(o, _)| o).collect();
+    if ctx.options.locate == Locate::Detections {
+        locate_from_detections(&ctx, &pass.poses, &mut objects);
+    }
     Outcome {
         frames_fused: ctx.prepared.len(),
         data: ctx.data,
@@ -375,5 +410,32 @@ fn finish(ctx: Context<'_>, pass: Pass, refinement: Option<RefinementCheck>) -> 
         refinement,
         options: ctx.options,
         choices: ctx.choices,
+    }
+}
+
+/// Replaces each object's location by the centre triangulated from its detections' boxes at
+/// the poses the frames were fused with, where the rays agree on one ([`ray_centre`]).
+fn locate_from_detections(ctx: &Context<'_>, poses: &[Iso3], objects: &mut [Object]) {
+    let views: Vec<View> = ctx
+        .prepared
+        .iter()
+        .zip(poses)
+        .map(|(p, pose)| View {
+            odom_from_camera: pose * p.mount,
+            detections: detections(&TileEvidence::from_probabilities(
+                p.probs.rows,
+                p.probs.cols,
+                p.probs.tile_px,
+                &p.probs.p,
+                ctx.prior,
+            )),
+        })
+        .collect();
+    for o in objects.iter_mut() {
+        if let Some(rc) = ray_centre(o, &views, &ctx.data.camera) {
+            o.extent_centre_m = Some(o.centroid_m);
+            o.centroid_m = rc.centre_m;
+            o.from_detections = Some(rc);
+        }
     }
 }
