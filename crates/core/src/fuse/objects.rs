@@ -316,7 +316,7 @@ fn summarize(grid: &Grid, members: &[usize]) -> Object {
     }
     let centroid_m = std::array::from_fn(|a| {
         let (q_lo, q_hi) = weighted_quantiles(&along[a], w, EXTENT_TRIM);
-        spec.origin_m[a] + v * (0.5 * (q_lo + q_hi) as f64 + 0.5)
+        spec.origin_m[a] + v * 0.5 * (q_lo + q_hi)
     });
     Object {
         centroid_m,
@@ -332,27 +332,34 @@ fn summarize(grid: &Grid, members: &[usize]) -> Object {
     }
 }
 
-/// The cell indices at which the cumulative probability mass along one axis (`mass[i]`: the
-/// mass of the cells with index i, summed in member order, so a function of the members)
-/// first reaches `trim` and `1 - trim` of `total`; the extreme occupied indices when rounding
-/// keeps the sum below.
-fn weighted_quantiles(mass: &[f64], total: f64, trim: f64) -> (usize, usize) {
+/// Where the cumulative probability mass along one axis (`mass[i]`: the mass of the cells
+/// with index i, summed in member order, so a function of the members) reaches `trim` and
+/// `1 - trim` of `total`, in cell-face coordinates (cell i spans [i, i + 1]), each cell's mass
+/// spread evenly over it: a position between faces, not a whole cell, so the centre of the
+/// extent moves continuously with the belief instead of in half-voxel steps. The extreme
+/// occupied faces when rounding keeps the sum below.
+fn weighted_quantiles(mass: &[f64], total: f64, trim: f64) -> (f64, f64) {
     let first = mass.iter().position(|m| *m > 0.0).unwrap_or(0);
     let last = mass.iter().rposition(|m| *m > 0.0).unwrap_or(0);
     let (lo_mass, hi_mass) = (trim * total, (1.0 - trim) * total);
     let (mut q_lo, mut q_hi) = (None, None);
     let mut cum = 0.0;
     for (i, &p) in mass.iter().enumerate().skip(first) {
+        let before = cum;
         cum += p;
-        if q_lo.is_none() && cum >= lo_mass {
-            q_lo = Some(i);
+        let at = |target: f64| i as f64 + ((target - before) / p).clamp(0.0, 1.0);
+        if q_lo.is_none() && cum >= lo_mass && p > 0.0 {
+            q_lo = Some(at(lo_mass));
         }
-        if q_hi.is_none() && cum >= hi_mass {
-            q_hi = Some(i);
+        if q_hi.is_none() && cum >= hi_mass && p > 0.0 {
+            q_hi = Some(at(hi_mass));
             break;
         }
     }
-    (q_lo.unwrap_or(first), q_hi.unwrap_or(last))
+    (
+        q_lo.unwrap_or(first as f64),
+        q_hi.unwrap_or(last as f64 + 1.0),
+    )
 }
 
 #[cfg(test)]
@@ -398,6 +405,8 @@ mod tests {
 
     #[test]
     fn extent_quantiles_skip_a_stray_end_cell() {
+        let close =
+            |a: (f64, f64), b: (f64, f64)| (a.0 - b.0).abs() < 1e-9 && (a.1 - b.1).abs() < 1e-9;
         // Ten layers of ten cells at p = 1, then one stray cell at p = 0.5 far out.
         let mut mass = vec![0.0; 50];
         for m in &mut mass[10..20] {
@@ -405,18 +414,24 @@ mod tests {
         }
         mass[40] = 0.5;
         let total = 100.5;
-        // 1 % of the mass is 1.005, 99 % is 99.495: reached at layers 10 and 19.
-        assert_eq!(weighted_quantiles(&mass, total, 0.01), (10, 19));
-        // Untrimmed, the stray cell is the extent's end.
-        assert_eq!(weighted_quantiles(&mass, total, 0.0), (10, 40));
-        // Mass concentrated at one end moves the quantiles: 30 % of the mass at layer 19.
+        // 1 % of the mass is 1.005, a tenth of layer 10's 10 (face 10.1005); 99 % is 99.495,
+        // 9.495 of layer 19's 10 beyond the 90 before it (face 19.9495).
+        let q = weighted_quantiles(&mass, total, 0.01);
+        assert!(close(q, (10.1005, 19.9495)), "{q:?}");
+        // Untrimmed, the stray cell's far face is the extent's end.
+        let q = weighted_quantiles(&mass, total, 0.0);
+        assert!(close(q, (10.0, 41.0)), "{q:?}");
+        // Mass concentrated at one end moves the quantiles: layers 10-19 of 1 each and 20/7
+        // more at layer 19 (total 90/7); 20 % is 18/7, 4/7 into layer 12; 80 % is 72/7, 9/7
+        // into layer 19's 27/7, a third of it.
         let mut skew = vec![0.0; 30];
         for m in &mut skew[10..20] {
             *m = 1.0;
         }
         skew[19] += 20.0 / 7.0;
         let total: f64 = skew.iter().sum();
-        assert_eq!(weighted_quantiles(&skew, total, 0.2), (12, 19));
+        let q = weighted_quantiles(&skew, total, 0.2);
+        assert!(close(q, (12.0 + 4.0 / 7.0, 19.0 + 1.0 / 3.0)), "{q:?}");
     }
 
     #[test]
@@ -462,15 +477,26 @@ mod tests {
         let merged = find_objects(&g, &ObjectParams::default());
         assert_eq!(merged.len(), 1);
         assert_eq!(merged[0].cells, 6 * 2 * 12 + 6 * 4 * 2 + 12);
-        // Location = centre of the extent (cells i 4..=9, j 4..=9, k 0..=11; 1 % of 204 cells
-        // is 2.04, less than any end layer holds, so nothing is trimmed); the mass centroid
-        // leans towards the heavy back (j: 1554 / 204 = 7.62), down to the seat (k: 1020 / 204
-        // = 5.0) and towards the leg's side (i: (192 * 6.5 + 12 * 5.5) / 204). Probabilities
-        // are 1 within 6e-7.
+        // Location = centre of the extent, the 1 % and 99 % points of the mass per axis
+        // within their layers (faces: cell n spans [n, n + 1]). 1 % of 204 cells is 2.04,
+        // 99 % is 201.96. Layers along i 4..=9 hold 32, 38, 38, 32, 32, 32: 4 + 2.04 / 32
+        // and 9 + (201.96 - 172) / 32, midpoint 7. Along j 4..=9 (seat 12, leg 6, back 72):
+        // 12, 18, 18, 12, 72, 72: 4 + 2.04 / 12 and 9 + (201.96 - 132) / 72. Along k 0..=11:
+        // 16, 16, 16, 12, 36, 36, then 12 each: 2.04 / 16 and 11 + (201.96 - 192) / 12. The
+        // mass centroid leans towards the heavy back (j: 1554 / 204 = 7.62 cell centres),
+        // down to the seat (k: 5.0) and towards the leg's side (i: (192 * 6.5 + 12 * 5.5) /
+        // 204). Probabilities are 1 within 6e-7.
         let at = |c: f64| (c + 0.5) * 0.05;
+        let mid = |lo: f64, hi: f64| 0.5 * (lo + hi) * 0.05;
         let (loc, mass) = (merged[0].centroid_m, merged[0].mass_centroid_m);
-        for (got, want) in loc.iter().zip([at(6.5), at(6.5), at(5.5)]) {
-            assert!((got - want).abs() < 1e-9, "{loc:?}");
+        let want_loc = [
+            mid(4.0 + 2.04 / 32.0, 9.0 + 29.96 / 32.0),
+            mid(4.0 + 2.04 / 12.0, 9.0 + 69.96 / 72.0),
+            mid(2.04 / 16.0, 11.0 + 9.96 / 12.0),
+        ];
+        assert!((want_loc[0] - 0.35).abs() < 1e-12);
+        for (got, want) in loc.iter().zip(want_loc) {
+            assert!((got - want).abs() < 1e-6, "{loc:?} {want_loc:?}");
         }
         for (got, want) in mass
             .iter()
