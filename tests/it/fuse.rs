@@ -30,7 +30,7 @@ fn demo_locates_the_chair_and_writes_its_outputs() {
     let err = after(", error ");
     // The mass centroid's error is reported beside it, as its own number (measured 0.034 m).
     assert!((0.0..0.3).contains(&after("mass centroid: ")), "{line}");
-    // Default options refine the poses: measured 0.016 m; the target is 0.08 m.
+    // Default options refine the poses: measured 0.009 m; the target is 0.08 m.
     assert!(err < 0.08, "{line}");
     assert!(
         text.contains("poses refined against the objects and the floor: ")
