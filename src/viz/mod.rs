@@ -44,6 +44,8 @@ pub enum VizError {
     },
     #[error("rerun: {0}")]
     Log(String),
+    #[error("rerun: encoding a frame: {0}")]
+    Encode(String),
 }
 
 /// Where the recording goes, decided from the Rerun flags as given on the command line.
@@ -177,15 +179,18 @@ impl std::fmt::Debug for VizStream {
     }
 }
 
-/// Every `log` call becomes its own chunk, sent in program order. The default batcher cuts
-/// chunks on a 200 ms timer, so two identical replays would be chunked differently and
-/// `rerun rrd compare` would call them different. Costs about 1 KiB per logged entity per
-/// frame; objloc logs a few dozen entities per frame.
-fn one_chunk_per_log() -> rerun::log::ChunkBatcherConfig {
+/// Chunks cut by size and row count alone, never by time: the default batcher cuts chunks on
+/// a 200 ms timer, so two identical replays would be chunked differently and `rerun rrd
+/// compare` would call them different. One chunk per `log` call (what objloc did before)
+/// also compares equal, but the SDK's memory grew by about 130 kB a frame with it (a 1000-frame
+/// replay peaked at 190 MB against 86 MB for 200 frames; the Rust SDK's memory growth with
+/// small chunks is rerun-io/rerun#12623); at 64 rows or 1 MiB a chunk it is 102 MB against
+/// 86 MB (docs/scale.md).
+fn deterministic_batches() -> rerun::log::ChunkBatcherConfig {
     rerun::log::ChunkBatcherConfig {
         flush_tick: std::time::Duration::MAX,
-        flush_num_bytes: 0,
-        flush_num_rows: 0,
+        flush_num_bytes: 1 << 20,
+        flush_num_rows: 64,
         ..rerun::log::ChunkBatcherConfig::DEFAULT
     }
 }
@@ -202,7 +207,7 @@ pub fn open_stream(
     let mut builder = RecordingStreamBuilder::new(APP_ID)
         .recording_id(recording_id)
         .send_properties(false)
-        .batcher_config(one_chunk_per_log())
+        .batcher_config(deterministic_batches())
         .enabled(true);
     if let Some(bp) = blueprint {
         builder = builder.with_blueprint(bp);
