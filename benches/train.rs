@@ -14,7 +14,7 @@ use std::time::{Duration, Instant};
 use objloc_core::io::msgs::RegionOfInterest;
 use objloc_core::io::session::Topics;
 use objloc_core::learn::dataset::{LoadedSession, SessionFrame, load_session};
-use objloc_core::learn::features::FeatureKind;
+use objloc_core::learn::features::FeatureSpec;
 use objloc_core::learn::model::{TrainConfig, examples, fit_model};
 use objloc_core::types::image::Rgb8;
 
@@ -115,7 +115,7 @@ fn main() {
         (
             "tile head, hsv",
             TrainConfig {
-                features: FeatureKind::Hsv,
+                features: FeatureSpec::HSV,
                 ..default.clone()
             },
         ),
