@@ -20,7 +20,9 @@ use thiserror::Error;
 use crate::learn::dataset::{
     Augment, ExampleParams, ExampleSet, LoadedSession, TILE_PX_RANGE, build_examples,
 };
-use crate::learn::features::{FeatureSpec, tile_histograms, with_context};
+use crate::learn::features::{
+    FeatureSpec, bin_planes, for_each_tile_histogram, tile_histograms, whole_tiles, with_context,
+};
 use crate::learn::tree::{
     Examples, FitReport, Metrics, Third, Tree, TreeError, TreeParams, fit, metrics,
 };
@@ -314,11 +316,29 @@ impl Model {
     /// Probability per tile of a frame, row-major, tiles aligned at pixel (0,0), partial edge
     /// tiles dropped.
     pub fn predict(&self, img: &Rgb8) -> TileProbs {
+        let denom = (self.tile_px * self.tile_px) as f64;
+        if self.context_tiles == 0 {
+            // Each tile's histogram is needed once: streamed, not kept for the frame.
+            let mut p = Vec::new();
+            for_each_tile_histogram(
+                &bin_planes(img, self.features),
+                img.width,
+                img.height,
+                self.features.bins(),
+                self.tile_px,
+                |h| p.push(self.tree.predict_counts(h, denom) as f32),
+            );
+            return TileProbs {
+                rows: whole_tiles(img.height, 0, self.tile_px),
+                cols: whole_tiles(img.width, 0, self.tile_px),
+                tile_px: self.tile_px,
+                p,
+            };
+        }
         let h = with_context(
             tile_histograms(img, self.features, self.tile_px, 0, 0),
             self.context_tiles,
         );
-        let denom = (self.tile_px * self.tile_px) as f64;
         let p = (0..h.rows * h.cols)
             .map(|t| self.tree.predict_counts(h.tile(t), denom) as f32)
             .collect();
