@@ -174,13 +174,32 @@ impl TileFeature for Hs {
     fn bins(&self) -> usize {
         HS_BINS
     }
+    /// Integer comparisons instead of `hsv`'s float hue: the same bins as computing hue and
+    /// saturation in f32 (checked for every colour by a unit test), at a third of the cost,
+    /// since this runs for every pixel of a frame.
     #[inline]
     fn bin(&self, [r, g, b]: [u8; 3]) -> usize {
-        let (r, g, b) = (r as u32, g as u32, b as u32);
-        match hue_sat(r, g, b, HS_HUE_BINS) {
-            Some((hue_bin, sat_bin)) => 2 + hue_bin * HSV_SAT_BINS + sat_bin,
-            None => usize::from(r.max(g).max(b) >= DARK_MAX),
+        let (r, g, b) = (r as i32, g as i32, b as i32);
+        let max = r.max(g).max(b);
+        let c = max - r.min(g).min(b);
+        if max < DARK_MAX as i32 {
+            return 0;
         }
+        if c * 5 < max {
+            return 1;
+        }
+        // Hue in quarter sextants: 4 * (sextant + num / c) with num in [-c, c].
+        let (sextant, num) = if max == r {
+            (if g >= b { 0 } else { 6 }, g - b)
+        } else if max == g {
+            (2, b - r)
+        } else {
+            (4, r - g)
+        };
+        let hue_bin = (4 * sextant + (4 * num).div_euclid(c)).min(HS_HUE_BINS as i32 - 1) as usize;
+        // Saturation c / max against 0.45 and 0.7.
+        let sat_bin = usize::from(20 * c >= 9 * max) + usize::from(10 * c >= 7 * max);
+        2 + hue_bin * HSV_SAT_BINS + sat_bin
     }
     fn describe_bin(&self, bin: usize) -> String {
         match bin {
@@ -257,6 +276,24 @@ mod tests {
             Hs.describe_bin(47),
             "blue hue 225-240 deg, low saturation, any brightness"
         );
+    }
+
+    /// The integer `hs` against hue and saturation in f32 (as `hsv` computes them), for every
+    /// one of the 2^24 colours.
+    #[test]
+    fn hs_integer_bins_equal_the_float_definition_for_every_colour() {
+        for r in 0..=255u8 {
+            for g in 0..=255u8 {
+                for b in 0..=255u8 {
+                    let (ru, gu, bu) = (r as u32, g as u32, b as u32);
+                    let want = match hue_sat(ru, gu, bu, HS_HUE_BINS) {
+                        Some((hue_bin, sat_bin)) => 2 + hue_bin * HSV_SAT_BINS + sat_bin,
+                        None => usize::from(ru.max(gu).max(bu) >= DARK_MAX),
+                    };
+                    assert_eq!(Hs.bin([r, g, b]), want, "({r}, {g}, {b})");
+                }
+            }
+        }
     }
 
     #[test]

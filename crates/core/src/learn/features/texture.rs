@@ -25,27 +25,22 @@ pub fn luma(rgb: &[u8]) -> Vec<u16> {
         .collect()
 }
 
-/// Calls `f(index, centre, [8 neighbours])` for every pixel, neighbours in the order left,
-/// right, up, down, up-left, up-right, down-left, down-right, clamped at the edges.
-#[inline]
-fn for_each_neighbourhood(
-    l: &[u16],
-    width: usize,
-    height: usize,
-    mut f: impl FnMut(usize, u32, [u32; 8]),
-) {
-    for y in 0..height {
-        let up = &l[y.saturating_sub(1) * width..][..width];
-        let row = &l[y * width..][..width];
-        let down = &l[(y + 1).min(height - 1) * width..][..width];
-        for x in 0..width {
-            let (xm, xp) = (x.saturating_sub(1), (x + 1).min(width - 1));
-            let n = [
-                row[xm], row[xp], up[x], down[x], up[xm], up[xp], down[xm], down[xp],
-            ];
-            f(y * width + x, row[x] as u32, n.map(u32::from));
-        }
-    }
+/// Row `y` of the luma plane widened to u32 and padded with its first and last pixel, so
+/// that the neighbours of pixel x are at x, x + 1 and x + 2 of the padded rows above, at and
+/// below it (clamped at the image edge) and the loops over a row vectorise.
+fn padded_row(l: &[u16], width: usize, y: usize, out: &mut Vec<u32>) {
+    let row = &l[y * width..][..width];
+    out.clear();
+    out.push(row[0] as u32);
+    out.extend(row.iter().map(|&v| v as u32));
+    out.push(row[width - 1] as u32);
+}
+
+/// The padded rows above, at and below `y`, clamped at the top and bottom edges.
+fn neighbour_rows(l: &[u16], width: usize, height: usize, y: usize, rows: &mut [Vec<u32>; 3]) {
+    padded_row(l, width, y.saturating_sub(1), &mut rows[0]);
+    padded_row(l, width, y, &mut rows[1]);
+    padded_row(l, width, (y + 1).min(height - 1), &mut rows[2]);
 }
 
 /// Index of (brighter, darker) counts in the triangle brighter + darker <= 8, brighter-major.
@@ -65,16 +60,46 @@ pub fn texture_plane(l: &[u16], width: usize, height: usize, offset: u16) -> Vec
     if width == 0 || height == 0 {
         return out;
     }
-    for_each_neighbourhood(l, width, height, |i, c, n| {
-        let bin = if c < DARK_LUMA as u32 {
-            0
-        } else {
-            let up = n.iter().filter(|&&v| 8 * v >= 9 * c).count();
-            let down = n.iter().filter(|&&v| 9 * v <= 8 * c).count();
-            1 + texture_index(up, down)
-        };
-        out[i] = offset + bin as u16;
-    });
+    let mut table = [0u16; 81];
+    for up in 0..=8 {
+        for down in 0..=8 - up {
+            table[up * 9 + down] = offset + 1 + texture_index(up, down) as u16;
+        }
+    }
+    let mut rows: [Vec<u32>; 3] = Default::default();
+    let (mut brighter, mut darker) = (vec![0u8; width], vec![0u8; width]);
+    // The 8 neighbours as (padded row, shift): all but the centre (1, 1).
+    const NEIGHBOURS: [(usize, usize); 8] = [
+        (0, 0),
+        (0, 1),
+        (0, 2),
+        (1, 0),
+        (1, 2),
+        (2, 0),
+        (2, 1),
+        (2, 2),
+    ];
+    for y in 0..height {
+        neighbour_rows(l, width, height, y, &mut rows);
+        let c = &rows[1][1..=width];
+        brighter.fill(0);
+        darker.fill(0);
+        for &(r, dx) in &NEIGHBOURS {
+            let n = &rows[r][dx..dx + width];
+            for x in 0..width {
+                brighter[x] += u8::from(8 * n[x] >= 9 * c[x]);
+                darker[x] += u8::from(9 * n[x] <= 8 * c[x]);
+            }
+        }
+        let out_row = &mut out[y * width..][..width];
+        for x in 0..width {
+            out_row[x] = if c[x] < DARK_LUMA as u32 {
+                offset
+            } else {
+                table[brighter[x] as usize * 9 + darker[x] as usize]
+            };
+        }
+    }
     out
 }
 
@@ -89,39 +114,44 @@ pub fn grad_plane(l: &[u16], width: usize, height: usize, offset: u16) -> Vec<u1
     if width == 0 || height == 0 {
         return out;
     }
-    for_each_neighbourhood(l, width, height, |i, c, n| {
-        let (gx, gy) = (n[1] as i32 - n[0] as i32, n[3] as i32 - n[2] as i32);
-        let (ax, ay) = (gx.unsigned_abs(), gy.unsigned_abs());
-        let m = ax + ay;
-        let bin = if c < DARK_LUMA as u32 {
-            0
-        } else if 8 * m < c {
-            1
-        } else {
-            let level = if 4 * m < c {
-                0
-            } else if 2 * m < c {
-                1
-            } else if m < c {
-                2
-            } else {
-                3
-            };
-            // tan(22.5 deg) = 0.4142 ~ 12 / 29.
-            let orientation = if 29 * ay < 12 * ax {
-                0
-            } else if 29 * ax < 12 * ay {
-                2
-            } else if (gx > 0) == (gy > 0) {
-                1
-            } else {
-                3
-            };
-            2 + level * 4 + orientation
-        };
-        out[i] = offset + bin as u16;
-    });
+    let mut rows: [Vec<u32>; 3] = Default::default();
+    for y in 0..height {
+        neighbour_rows(l, width, height, y, &mut rows);
+        let out_row = &mut out[y * width..][..width];
+        for x in 0..width {
+            let c = rows[1][x + 1];
+            let gx = rows[1][x + 2] as i32 - rows[1][x] as i32;
+            let gy = rows[2][x + 1] as i32 - rows[0][x + 1] as i32;
+            out_row[x] = offset + grad_bin(c, gx, gy);
+        }
+    }
     out
+}
+
+/// The gradient bin of a pixel of luma `c` with central differences `gx`, `gy`.
+#[inline]
+fn grad_bin(c: u32, gx: i32, gy: i32) -> u16 {
+    let (ax, ay) = (gx.unsigned_abs(), gy.unsigned_abs());
+    let m = ax + ay;
+    if c < DARK_LUMA as u32 {
+        return 0;
+    }
+    if 8 * m < c {
+        return 1;
+    }
+    // The number of the thresholds c / 4, c / 2, c that m reaches.
+    let level = u16::from(4 * m >= c) + u16::from(2 * m >= c) + u16::from(m >= c);
+    // tan(22.5 deg) = 0.4142 ~ 12 / 29.
+    let orientation = if 29 * ay < 12 * ax {
+        0
+    } else if 29 * ax < 12 * ay {
+        2
+    } else if (gx > 0) == (gy > 0) {
+        1
+    } else {
+        3
+    };
+    2 + level * 4 + orientation
 }
 
 /// A texture bin in words.
@@ -163,6 +193,64 @@ mod tests {
     /// Unrounded luma planes from 8-bit grey levels.
     fn grey(v: &[u8]) -> Vec<u16> {
         v.iter().map(|&x| x as u16 * 256).collect()
+    }
+
+    /// The definitions pixel by pixel, neighbours clamped with index arithmetic: what the
+    /// row-wise planes must equal.
+    fn reference(l: &[u16], w: usize, h: usize) -> (Vec<u16>, Vec<u16>) {
+        let at = |x: i64, y: i64| {
+            l[(y.clamp(0, h as i64 - 1) as usize) * w + x.clamp(0, w as i64 - 1) as usize] as u32
+        };
+        let (mut tex, mut grad) = (Vec::new(), Vec::new());
+        for y in 0..h as i64 {
+            for x in 0..w as i64 {
+                let c = at(x, y);
+                let n: Vec<u32> = [
+                    (-1, -1),
+                    (0, -1),
+                    (1, -1),
+                    (-1, 0),
+                    (1, 0),
+                    (-1, 1),
+                    (0, 1),
+                    (1, 1),
+                ]
+                .iter()
+                .map(|&(dx, dy)| at(x + dx, y + dy))
+                .collect();
+                let up = n.iter().filter(|&&v| 8 * v >= 9 * c).count();
+                let down = n.iter().filter(|&&v| 9 * v <= 8 * c).count();
+                tex.push(if c < DARK_LUMA as u32 {
+                    0
+                } else {
+                    1 + texture_index(up, down) as u16
+                });
+                let gx = at(x + 1, y) as i32 - at(x - 1, y) as i32;
+                let gy = at(x, y + 1) as i32 - at(x, y - 1) as i32;
+                grad.push(grad_bin(c, gx, gy));
+            }
+        }
+        (tex, grad)
+    }
+
+    #[test]
+    fn planes_equal_the_pixel_by_pixel_definition() {
+        let mut state = 0x2545_F491_4F6C_DD1Du64;
+        for (w, h) in [(1, 1), (1, 7), (9, 1), (2, 2), (23, 17)] {
+            let l: Vec<u16> = (0..w * h)
+                .map(|_| {
+                    state ^= state << 13;
+                    state ^= state >> 7;
+                    state ^= state << 17;
+                    // Grey levels in clusters, so that flat, dark and textured pixels all occur.
+                    ((state >> 40) % 6) as u16 * 40 * 256 + (state % 700) as u16
+                })
+                .collect();
+            let (tex, grad) = reference(&l, w, h);
+            assert_eq!(texture_plane(&l, w, h, 0), tex, "{w} x {h}");
+            assert_eq!(grad_plane(&l, w, h, 0), grad, "{w} x {h}");
+            assert!(tex.iter().any(|&b| b > 1) || w * h < 4);
+        }
     }
 
     #[test]
