@@ -14,7 +14,7 @@ use std::time::{Duration, Instant};
 use objloc_core::io::msgs::RegionOfInterest;
 use objloc_core::io::session::Topics;
 use objloc_core::learn::dataset::{LoadedSession, SessionFrame, load_session};
-use objloc_core::learn::features::FeatureKind;
+use objloc_core::learn::features::FeatureSpec;
 use objloc_core::learn::model::{TrainConfig, examples, fit_model};
 use objloc_core::types::image::Rgb8;
 
@@ -115,7 +115,7 @@ fn main() {
         (
             "tile head, hsv",
             TrainConfig {
-                features: FeatureKind::Hsv,
+                features: FeatureSpec::HSV,
                 ..default.clone()
             },
         ),
@@ -176,4 +176,71 @@ fn main() {
     println!(
         "default model (rgb332 tile head + region head): train total {default_total:.1} ms (sum of the medians)"
     );
+    predict_at_camera_resolution(&sessions);
+}
+
+/// The tile head of each feature spec trained on the session, then timed on one 1080 x 1920
+/// frame (the session's first frame scaled up by pixel repetition, so it holds the same
+/// colours and edges): what a phone frame costs to classify, single-threaded.
+fn predict_at_camera_resolution(sessions: &[LoadedSession]) {
+    let src = &sessions[0].frames[0].image;
+    let (w, h) = (1080u32, 1920u32);
+    let mut data = Vec::with_capacity((w * h * 3) as usize);
+    for y in 0..h {
+        for x in 0..w {
+            let (sx, sy) = (x * src.width / w, y * src.height / h);
+            let i = ((sy * src.width + sx) * 3) as usize;
+            data.extend_from_slice(&src.data[i..i + 3]);
+        }
+    }
+    let frame = Rgb8 {
+        width: w,
+        height: h,
+        data,
+    };
+    for spec in [
+        "rgb332",
+        "hsv",
+        "rgb332+hs",
+        "rgb332+texture",
+        "rgb332+grad",
+        "rgb332+hs+texture+grad",
+    ] {
+        let Ok(features) = spec.parse::<FeatureSpec>() else {
+            eprintln!("error: feature spec {spec}");
+            std::process::exit(1);
+        };
+        let cfg = TrainConfig {
+            features,
+            region: None,
+            ..TrainConfig::default()
+        };
+        let model = examples(sessions, &cfg).and_then(|set| fit_model(sessions, &set, &cfg));
+        let model = match model {
+            Ok(m) => m,
+            Err(e) => {
+                eprintln!("error: {e}");
+                std::process::exit(1);
+            }
+        };
+        let pool = match rayon::ThreadPoolBuilder::new().num_threads(1).build() {
+            Ok(p) => p,
+            Err(e) => {
+                eprintln!("error: {e}");
+                std::process::exit(1);
+            }
+        };
+        let t: Vec<Duration> = (0..RUNS)
+            .map(|_| {
+                let t0 = Instant::now();
+                pool.install(|| std::hint::black_box(model.predict(std::hint::black_box(&frame))));
+                t0.elapsed()
+            })
+            .collect();
+        println!(
+            "tile head {spec}: predict a 1080 x 1920 frame {:.1} ms (median of {RUNS}, one thread, {} nodes)",
+            median(t),
+            model.tree.nodes.len()
+        );
+    }
 }

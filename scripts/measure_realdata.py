@@ -12,7 +12,8 @@ size, inside the rectangle in >= 95 % of the frames, tile AUC >= 0.93.
 Usage: scripts/measure_realdata.py [--markdown OUT.md] [-- extra fuse flags...]
        (from the repository root; stdlib only; calls target/release/objloc)
 Skips with a message when ../shared/realdata is absent (REALDATA_DIR overrides it).
-TRAIN_FLAGS in the environment are passed to `objloc train`.
+TRAIN_FLAGS in the environment are passed to `objloc train`; `--tag T` names the models and
+reports `OBJECT-T.json` so that several settings can be measured side by side.
 """
 import argparse
 import json
@@ -50,7 +51,7 @@ def session(capture, labels, out):
     run([BIN, "record", "import", *flags, "--labels", labels, "--object", obj, "-o", out])
 
 
-def measure(capture, obj, fuse_flags):
+def measure(capture, obj, fuse_flags, tag=""):
     d = os.path.join(OUT, capture)
     os.makedirs(d, exist_ok=True)
     train = os.path.join(d, "train.mcap")
@@ -58,14 +59,17 @@ def measure(capture, obj, fuse_flags):
     if not os.path.exists(tour):
         session(capture, os.path.join(LABELS, capture, "train-labels.csv"), train)
         session(capture, os.path.join(LABELS, capture, "labels.csv"), tour)
-    model = os.path.join(d, f"{obj}.json")
-    report = os.path.join(d, f"{obj}.report.json")
+    name = f"{obj}-{tag}" if tag else obj
+    model = os.path.join(d, f"{name}.json")
+    report = os.path.join(d, f"{name}.report.json")
     run([BIN, "train", train, "--object", obj, "-o", model, "--no-rerun",
          *os.environ.get("TRAIN_FLAGS", "").split()])
     run([BIN, "fuse", tour, "--model", model, "--report", report, "--no-rerun", *fuse_flags])
     pred = run([BIN, "predict", tour, "--model", model, "--object", obj,
-                "--out", os.path.join(d, f"{obj}-predict"), "--no-rerun"])
-    m = re.search(r"tile head .*?tile ROC AUC ([0-9.]+)", pred)
+                "--out", os.path.join(d, f"{name}-predict"), "--no-rerun"])
+    # The tile head's line; a model without a region head prints only that one.
+    m = (re.search(r"tile head .*?tile ROC AUC ([0-9.]+)", pred)
+         or re.search(r"tile ROC AUC ([0-9.]+)", pred))
     auc = float(m.group(1)) if m else None
     ev = json.loads(run([BIN, "eval", tour, "--report", report, "--object", obj, "--json"]))
     s = ev[0]["score"] if ev else {}
@@ -90,6 +94,7 @@ def row(r):
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--markdown")
+    ap.add_argument("--tag", default="")
     ap.add_argument("fuse_flags", nargs="*")
     a = ap.parse_args()
     if not os.path.isdir(DATA):
@@ -101,7 +106,7 @@ def main():
              "tile AUC | voxel (units) | all targets |", "|---|---|---|---|---|---|---|---|"]
     for capture, (_, _, objs) in CAPTURES.items():
         for obj in objs:
-            lines.append(row(measure(capture, obj, a.fuse_flags)))
+            lines.append(row(measure(capture, obj, a.fuse_flags, a.tag)))
     text = "\n".join(lines)
     print(text)
     if a.markdown:

@@ -5,8 +5,8 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::Context;
-use objloc_core::learn::dataset::{LoadedSession, export_features, load_session};
-use objloc_core::learn::features::FeatureKind;
+use objloc_core::learn::dataset::{Augment, LoadedSession, export_features, load_session};
+use objloc_core::learn::features::FeatureSpec;
 use objloc_core::learn::model::{Model, RegionConfig, TrainConfig, examples, fit_model};
 use objloc_core::learn::tree::TreeParams;
 
@@ -23,11 +23,13 @@ pub struct Args {
     /// No progress spinner (there is none anyway when stderr is not a terminal).
     #[arg(long, short)]
     quiet: bool,
-    /// Colour quantisation of the tile histograms. rgb332 is the default: on the shipped
-    /// tours its maps fuse into tighter objects than hsv's (docs/fuser.md), though hsv scores
-    /// a slightly higher tile AUC.
-    #[arg(long, value_enum, default_value = "rgb332")]
-    features: FeatureKind,
+    /// The tile head's channels, joined by '+': colour rgb332 | hsv | hs (hue and saturation
+    /// without brightness), texture (brighter / darker neighbour counts), grad (gradient
+    /// magnitude and orientation); e.g. rgb332+texture (docs/tree.md). rgb332 is the
+    /// default: on the shipped tours its maps fuse into tighter objects than hsv's
+    /// (docs/fuser.md), though hsv scores a slightly higher tile AUC.
+    #[arg(long, default_value = "rgb332", value_name = "SPEC")]
+    features: FeatureSpec,
     /// Seed of the split into training, test and pruning thirds.
     #[arg(long, default_value_t = 0)]
     seed: u64,
@@ -38,6 +40,10 @@ pub struct Args {
     /// aligned grid only).
     #[arg(long = "train-stride", default_value_t = 4)]
     train_stride_px: u32,
+    /// Photometric variants of the frames the shifted training grids are cut from: none, or
+    /// light (darker, brighter, warmer, cooler; docs/tree.md).
+    #[arg(long, value_enum, default_value = "none")]
+    augment: Augment,
     /// Use only labels naming this object (default: every label).
     #[arg(long)]
     object: Option<String>,
@@ -60,9 +66,9 @@ pub struct Args {
     /// rate: bounds the evidence one tile can give against the object (0: none).
     #[arg(long = "base-mix", default_value_t = TreeParams::default().base_mix)]
     base_mix: f64,
-    /// Colour quantisation of the region head (the tree `predict` answers with).
-    #[arg(long = "region-features", value_enum, default_value = "hsv")]
-    region_features: FeatureKind,
+    /// The region head's channels (the tree `predict` answers with), as --features.
+    #[arg(long = "region-features", default_value = "hsv", value_name = "SPEC")]
+    region_features: FeatureSpec,
     /// Neighbourhood radius in tiles of the region head's features (1..=4).
     #[arg(long = "region-context-tiles", default_value_t = RegionConfig::default().context_tiles)]
     region_context_tiles: u32,
@@ -88,6 +94,7 @@ fn config(args: &Args) -> anyhow::Result<TrainConfig> {
         tile_px: args.tile_px,
         context_tiles: args.context_tiles,
         train_stride_px: args.train_stride_px,
+        augment: args.augment,
         seed: args.seed,
         object: args.object.clone(),
         tree: TreeParams {

@@ -432,6 +432,105 @@ fn bad_inputs_fail_with_one_line_and_no_output() {
 
 /// The tile ROC AUC in what `objloc predict` printed.
 /// The last tile AUC `predict` printed: that of probs.npy.
+#[test]
+fn channels_and_light_augmentation_train_save_load_and_predict() {
+    let dir = tempfile::tempdir().unwrap();
+    let train = train_session(dir.path());
+    let model = dir.path().join("m.json");
+    // Channel names in any order are stored in the fixed order.
+    let text = ok(&objloc(
+        &[
+            "train",
+            p(&train),
+            "-o",
+            p(&model),
+            "--features",
+            "texture+rgb332+hs",
+            "--augment",
+            "light",
+            "--no-region",
+            "--no-rerun",
+        ],
+        &[],
+    ));
+    assert!(text.contains("features rgb332+hs+texture"), "{text}");
+    let m: serde_json::Value = serde_json::from_slice(&std::fs::read(&model).unwrap()).unwrap();
+    assert_eq!(m["features"], "rgb332+hs+texture");
+    // 256 colour bins, 74 hue-saturation bins, 46 texture bins.
+    assert_eq!(m["tree"]["n_features"], 376);
+    assert_eq!(m["metadata"]["augment"], "light");
+    // The same shifted-grid tiles as without augmentation: only their frames' light differs.
+    assert_eq!(
+        m["metadata"]["examples"]["train_shifted"]["examples"],
+        49626
+    );
+    let tour = dir.path().join("tour.mcap");
+    write_session(
+        &tour,
+        2,
+        &[Kind::Object(100, 40, 40, 60), Kind::Object(10, 150, 36, 48)],
+    );
+    let out = dir.path().join("pred");
+    let text = ok(&objloc(
+        &[
+            "predict",
+            p(&tour),
+            "--model",
+            p(&model),
+            "--out",
+            p(&out),
+            "--no-rerun",
+        ],
+        &[],
+    ));
+    let auc = printed_auc(&text);
+    assert!(auc > 0.97, "{text}");
+    // A spec that names an unknown or repeated channel is a command-line error.
+    for bad in ["rgb332+lab", "hs+hs"] {
+        let out = objloc(
+            &["train", p(&train), "-o", p(&model), "--features", bad],
+            &[],
+        );
+        assert_eq!(out.status.code(), Some(2), "{bad}");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            err.contains(&format!("feature spec \"{bad}\" is not known")),
+            "{err}"
+        );
+    }
+    // A file whose spec and tree disagree is refused, naming both.
+    let text = std::fs::read_to_string(&model).unwrap();
+    let bad = dir.path().join("bad.json");
+    std::fs::write(
+        &bad,
+        text.replacen(
+            "\"features\": \"rgb332+hs+texture\"",
+            "\"features\": \"rgb332+texture\"",
+            1,
+        ),
+    )
+    .unwrap();
+    let out = objloc(
+        &[
+            "predict",
+            p(&tour),
+            "--model",
+            p(&bad),
+            "--out",
+            p(&out),
+            "--no-rerun",
+        ],
+        &[],
+    );
+    let line = one_line_error(&out);
+    assert!(
+        line.contains(
+            "tree has 376 features but feature spec \"rgb332+texture\" (context 0 tiles) has 302"
+        ),
+        "{line}"
+    );
+}
+
 fn printed_auc(text: &str) -> f64 {
     text.rsplit("tile ROC AUC ")
         .next()

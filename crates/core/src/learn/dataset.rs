@@ -15,12 +15,13 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
 use crate::io::msgs::RegionOfInterest;
 use crate::io::session::{At, SessionError, SessionMsg, SessionReader, Topics};
 use crate::learn::features::{
-    FeatureKind, TileFeature, bin_image, feature_count, histograms_of_bins, with_context,
+    FeatureSpec, bin_planes, feature_count, histograms_of_bins, with_context,
 };
 use crate::learn::tree::{Examples, Third};
 use crate::types::image::Rgb8;
@@ -217,8 +218,8 @@ pub fn tile_labels(
 /// How labelled frames are cut into examples (see the module doc).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct ExampleParams {
-    /// Colour quantisation of the tile histograms.
-    pub features: FeatureKind,
+    /// The channels of the tile histograms.
+    pub features: FeatureSpec,
     /// Side of a square tile, px; must lie in [`TILE_PX_RANGE`].
     pub tile_px: u32,
     /// Shift between the extra training grids; = tile_px for the aligned grid only.
@@ -228,6 +229,59 @@ pub struct ExampleParams {
     /// Radius in tiles of the neighbourhood histogram appended to each tile's
     /// ([`crate::learn::features::with_context`]); 0 = the tile alone.
     pub context_tiles: u32,
+    /// Photometric variants of the frames the shifted grids are cut from.
+    pub augment: Augment,
+}
+
+/// Augmentation of the training third: how the frames of the shifted grids are altered.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+#[value(rename_all = "lowercase")]
+pub enum Augment {
+    /// Every grid is cut from the frame as recorded.
+    #[default]
+    None,
+    /// Each shifted grid is cut from the frame under one of [`LIGHT_VARIANTS`] (darker,
+    /// brighter, warmer, cooler or as recorded, cycling over frames and grids), so the tree
+    /// sees the object under more exposures and white balances than three frames hold.
+    Light,
+}
+
+/// Per-channel gains (r, g, b) in 1/256 of the light variants: as recorded, 0.75 (darker),
+/// 1.3 (brighter, clipped at 255), red x 1.125 and blue x 0.875 (warmer), and the reverse
+/// (cooler).
+pub const LIGHT_VARIANTS: [[u32; 3]; 5] = [
+    [256, 256, 256],
+    [192, 192, 192],
+    [333, 333, 333],
+    [288, 256, 224],
+    [224, 256, 288],
+];
+
+/// `img` with each channel multiplied by its gain in 1/256, rounded down and clipped at 255.
+pub fn apply_gains(img: &Rgb8, gains: [u32; 3]) -> Rgb8 {
+    let data = img
+        .data
+        .chunks_exact(3)
+        .flat_map(|p| {
+            let g = |c: usize| ((p[c] as u32 * gains[c]) >> 8).min(255) as u8;
+            [g(0), g(1), g(2)]
+        })
+        .collect();
+    Rgb8 {
+        data,
+        ..img.clone()
+    }
+}
+
+/// The light variant grid `grid` (0 = aligned) of labelled frame `frame` is cut from: the
+/// aligned grid (test and pruning thirds) always as recorded.
+fn light_variant(augment: Augment, frame: usize, grid: usize) -> usize {
+    match augment {
+        Augment::None => 0,
+        Augment::Light if grid == 0 => 0,
+        Augment::Light => (frame + grid) % LIGHT_VARIANTS.len(),
+    }
 }
 
 impl ExampleParams {
@@ -301,14 +355,30 @@ pub fn build_examples(
     // would take hundreds of MB and their scan was a tenth of the training time.
     let per_frame: Vec<Vec<(SparseTiles, Vec<bool>)>> = frames
         .par_iter()
-        .map(|(img, regions)| {
-            let pixel_bins = bin_image(img, &feature);
+        .enumerate()
+        .map(|(fi, (img, regions))| {
+            // The bins of each light variant this frame's grids use, computed once.
+            let mut planes: Vec<Option<Vec<Vec<u16>>>> = vec![None; LIGHT_VARIANTS.len()];
+            for k in 0..offsets.len() {
+                let v = light_variant(params.augment, fi, k);
+                if planes[v].is_none() {
+                    planes[v] = Some(if v == 0 {
+                        bin_planes(img, feature)
+                    } else {
+                        bin_planes(&apply_gains(img, LIGHT_VARIANTS[v]), feature)
+                    });
+                }
+            }
             offsets
                 .iter()
-                .map(|&(dx, dy)| {
+                .enumerate()
+                .map(|(k, &(dx, dy))| {
+                    let planes = planes[light_variant(params.augment, fi, k)]
+                        .as_deref()
+                        .unwrap_or_default();
                     let h = with_context(
                         histograms_of_bins(
-                            &pixel_bins,
+                            planes,
                             img.width,
                             img.height,
                             feature.bins(),
@@ -455,5 +525,39 @@ mod tests {
         }
         assert_eq!(th, assign_thirds(&labels, 7));
         assert_ne!(th, assign_thirds(&labels, 8));
+    }
+
+    #[test]
+    fn light_variants_scale_channels_and_spare_the_aligned_grid() {
+        let img = Rgb8 {
+            width: 2,
+            height: 1,
+            data: vec![200, 100, 40, 10, 20, 255],
+        };
+        // Darker x 0.75: 150 75 30, 7 15 191 (rounded down).
+        assert_eq!(
+            apply_gains(&img, LIGHT_VARIANTS[1]).data,
+            vec![150, 75, 30, 7, 15, 191]
+        );
+        // Brighter x 333 / 256: 200 -> 260 clipped to 255, 100 -> 130, 40 -> 52, 10 -> 13,
+        // 20 -> 26, 255 -> 255.
+        assert_eq!(
+            apply_gains(&img, LIGHT_VARIANTS[2]).data,
+            vec![255, 130, 52, 13, 26, 255]
+        );
+        // Warmer: red x 1.125 (200 -> 225), blue x 0.875 (40 -> 35, 255 -> 223).
+        assert_eq!(
+            apply_gains(&img, LIGHT_VARIANTS[3]).data,
+            vec![225, 100, 35, 11, 20, 223]
+        );
+        for frame in 0..4 {
+            assert_eq!(light_variant(Augment::Light, frame, 0), 0);
+            assert_eq!(light_variant(Augment::None, frame, 3), 0);
+        }
+        // Three frames of four grids use every variant.
+        let used: std::collections::BTreeSet<usize> = (0..3)
+            .flat_map(|f| (0..4).map(move |g| light_variant(Augment::Light, f, g)))
+            .collect();
+        assert_eq!(used.len(), LIGHT_VARIANTS.len());
     }
 }

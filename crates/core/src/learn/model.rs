@@ -18,9 +18,11 @@ use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
 use crate::learn::dataset::{
-    ExampleParams, ExampleSet, LoadedSession, TILE_PX_RANGE, build_examples,
+    Augment, ExampleParams, ExampleSet, LoadedSession, TILE_PX_RANGE, build_examples,
 };
-use crate::learn::features::{FeatureKind, TileFeature, tile_histograms, with_context};
+use crate::learn::features::{
+    FeatureSpec, bin_planes, for_each_tile_histogram, tile_histograms, whole_tiles, with_context,
+};
 use crate::learn::tree::{
     Examples, FitReport, Metrics, Third, Tree, TreeError, TreeParams, fit, metrics,
 };
@@ -147,6 +149,9 @@ pub struct TrainingMetadata {
     pub object: Option<String>,
     /// Shift between the extra training grids, px (= `tile_px`: the aligned grid only).
     pub train_stride_px: u32,
+    /// How the frames of the shifted grids were altered (absent in older files: none).
+    #[serde(default)]
+    pub augment: Augment,
     /// The growth and smoothing settings used.
     pub tree_params: TreeParams,
     /// Examples and positives per third.
@@ -164,8 +169,8 @@ pub struct TrainingMetadata {
 pub struct Model {
     /// Model file format version: [`MODEL_VERSION`] for every model that loads.
     pub version: u32,
-    /// Colour quantisation of the tile histograms (`rgb332` or `hsv`).
-    pub features: FeatureKind,
+    /// The channels of the tile histograms (`rgb332`, `hsv`, `rgb332+texture`, ...).
+    pub features: FeatureSpec,
     /// Side of a square tile, px, in [`TILE_PX_RANGE`]; frames are cut into tiles aligned at pixel
     /// (0, 0).
     pub tile_px: u32,
@@ -222,13 +227,15 @@ impl Model {
                 });
             }
         }
-        if let Some(f) = value.get("features")
-            && serde_json::from_value::<FeatureKind>(f.clone()).is_err()
-        {
-            return Err(ModelError::Spec {
-                path: path.to_owned(),
-                what: format!("feature spec {f} is not known (known: \"rgb332\", \"hsv\")"),
-            });
+        for head in [Some(&value), value.get("region")].into_iter().flatten() {
+            if let Some(f) = head.get("features")
+                && let Err(e) = serde_json::from_value::<FeatureSpec>(f.clone())
+            {
+                return Err(ModelError::Spec {
+                    path: path.to_owned(),
+                    what: e.to_string(),
+                });
+            }
         }
         let model: Model = serde_json::from_value(value).map_err(json)?;
         model.check().map_err(|e| match e {
@@ -309,11 +316,29 @@ impl Model {
     /// Probability per tile of a frame, row-major, tiles aligned at pixel (0,0), partial edge
     /// tiles dropped.
     pub fn predict(&self, img: &Rgb8) -> TileProbs {
+        let denom = (self.tile_px * self.tile_px) as f64;
+        if self.context_tiles == 0 {
+            // Each tile's histogram is needed once: streamed, not kept for the frame.
+            let mut p = Vec::new();
+            for_each_tile_histogram(
+                &bin_planes(img, self.features),
+                img.width,
+                img.height,
+                self.features.bins(),
+                self.tile_px,
+                |h| p.push(self.tree.predict_counts(h, denom) as f32),
+            );
+            return TileProbs {
+                rows: whole_tiles(img.height, 0, self.tile_px),
+                cols: whole_tiles(img.width, 0, self.tile_px),
+                tile_px: self.tile_px,
+                p,
+            };
+        }
         let h = with_context(
-            tile_histograms(img, &self.features, self.tile_px, 0, 0),
+            tile_histograms(img, self.features, self.tile_px, 0, 0),
             self.context_tiles,
         );
-        let denom = (self.tile_px * self.tile_px) as f64;
         let p = (0..h.rows * h.cols)
             .map(|t| self.tree.predict_counts(h.tile(t), denom) as f32)
             .collect();
@@ -664,8 +689,8 @@ impl SessionPrediction {
 /// How to train.
 #[derive(Debug, Clone, PartialEq)]
 pub struct TrainConfig {
-    /// Colour quantisation of the tile head's histograms.
-    pub features: FeatureKind,
+    /// The channels of the tile head's histograms.
+    pub features: FeatureSpec,
     /// Side of a square tile, px, for both heads; must lie in [`TILE_PX_RANGE`].
     pub tile_px: u32,
     /// Radius in tiles of the tile head's neighbourhood histogram (0 = the tile alone); a model
@@ -673,6 +698,8 @@ pub struct TrainConfig {
     pub context_tiles: u32,
     /// Shift between the tile head's extra training grids, px, in 1..=`tile_px`.
     pub train_stride_px: u32,
+    /// Photometric variants of the shifted grids' frames, for both heads.
+    pub augment: Augment,
     /// Seed of the stratified shuffle into thirds, for both heads.
     pub seed: u64,
     /// Train on the labels of this object only (None: every label).
@@ -688,8 +715,8 @@ pub struct TrainConfig {
 /// are the tile head's.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RegionConfig {
-    /// Colour quantisation of the region head's histograms.
-    pub features: FeatureKind,
+    /// The channels of the region head's histograms.
+    pub features: FeatureSpec,
     /// Radius in tiles of the region head's neighbourhood histogram (0 = the tile alone).
     pub context_tiles: u32,
     /// Shift between the region head's extra training grids, px, in 1..=`tile_px`.
@@ -702,7 +729,7 @@ pub struct RegionConfig {
 impl Default for RegionConfig {
     fn default() -> Self {
         Self {
-            features: FeatureKind::Hsv,
+            features: FeatureSpec::HSV,
             context_tiles: 2,
             train_stride_px: 2,
         }
@@ -714,10 +741,11 @@ impl Default for RegionConfig {
 impl Default for TrainConfig {
     fn default() -> Self {
         Self {
-            features: FeatureKind::Rgb332,
+            features: FeatureSpec::RGB332,
             tile_px: 8,
             context_tiles: 0,
             train_stride_px: 4,
+            augment: Augment::None,
             seed: 0,
             object: None,
             tree: TreeParams::default(),
@@ -746,6 +774,7 @@ impl TrainConfig {
             context_tiles: self.context_tiles,
             train_stride_px: self.train_stride_px,
             seed: self.seed,
+            augment: self.augment,
         }
     }
 }
@@ -809,6 +838,7 @@ pub fn fit_model(
             .collect(),
         object: cfg.object.clone(),
         train_stride_px: cfg.train_stride_px,
+        augment: cfg.augment,
         tree_params: cfg.tree,
         examples: ExampleCounts {
             train: count(Third::Train),
