@@ -41,7 +41,7 @@ use prepare::{Context, Prepared, decode_frame, floor_params, prepare};
 
 use thiserror::Error;
 
-use crate::fuse::grid::{Grid, GridError};
+use crate::fuse::grid::{Budget, Grid, GridError, GridStorage};
 use crate::fuse::motion::{BlurMode, Segment};
 use crate::fuse::objects::{Object, ObjectParams, find_objects_with_cells};
 use crate::fuse::refine::Correction;
@@ -142,7 +142,22 @@ pub struct FuseOptions {
     /// it existed read as choosing nothing.
     #[serde(default)]
     pub fit: SessionFit,
+    /// The range limit of a frame's update: it stops at the depth where a tile's footprint
+    /// exceeds this many cells (beyond, one tile's value covers a wall of cells and locates
+    /// nothing; see [`crate::fuse::grid::max_depth_m`]); None for no limit. Default
+    /// [`DEFAULT_MAX_FOOTPRINT_VOXELS`]; absent from reports written before it existed, which
+    /// had no limit.
+    #[serde(default)]
+    pub max_footprint_voxels: Option<f64>,
+    /// Which blocks of the grid are stored (default auto: dense for a room-sized grid, sparse
+    /// for a larger one); the grid's values do not depend on it.
+    #[serde(default)]
+    pub grid_storage: GridStorage,
 }
+
+/// The default range limit ([`FuseOptions::max_footprint_voxels`]): a tile's update stops
+/// where its footprint exceeds this many cells.
+pub const DEFAULT_MAX_FOOTPRINT_VOXELS: f64 = 8.0;
 
 /// Where the replay takes the robot poses of frames from (`--poses`).
 #[derive(
@@ -171,6 +186,8 @@ impl Default for FuseOptions {
             refine_poses: true,
             refine_floor: true,
             fit: SessionFit::ALL,
+            max_footprint_voxels: Some(DEFAULT_MAX_FOOTPRINT_VOXELS),
+            grid_storage: GridStorage::Auto,
         }
     }
 }
@@ -324,11 +341,11 @@ pub fn replay(
     let ctx = prepare(reader, classifier, &options.normalised(), observers)?;
     let options = &ctx.options.clone();
     for o in observers.iter_mut() {
-        o.on_start(
-            &ctx.data,
-            &Grid::new(ctx.spec, ctx.prior).map_err(|e| ctx.grid_err(e))?,
-        )
-        .map_err(|e| ctx.observer_err(None, e))?;
+        // An empty sparse grid: the same cells as the pass's fresh one, none allocated.
+        let fresh = Grid::with_storage(ctx.spec, ctx.prior, GridStorage::Sparse, Budget::default())
+            .map_err(|e| ctx.grid_err(e))?;
+        o.on_start(&ctx.data, &fresh)
+            .map_err(|e| ctx.observer_err(None, e))?;
     }
     let first = run_pass(&ctx, options, observers, None)?;
     let mut refinement = None;
