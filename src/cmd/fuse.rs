@@ -11,7 +11,7 @@ use crate::viz::{
     self, VizArgs,
     fuse::{FuseViz, VizOptions},
 };
-use objloc_core::fuse::grid::{GridStorage, MAX_GRID_BYTES};
+use objloc_core::fuse::grid::{GridStorage, MAX_EXPORT_BYTES};
 use objloc_core::fuse::motion::BlurMode;
 use objloc_core::fuse::objects::ObjectParams;
 use objloc_core::fuse::replay::{FuseOptions, Outcome, PoseSource, SessionFit, replay};
@@ -302,28 +302,15 @@ pub fn fuse(
     Ok(Fused { outcome, report })
 }
 
-/// Largest `.npy` `fuse --grid` writes, bytes: as much as the grid itself may take.
-const MAX_EXPORT_BYTES: u64 = MAX_GRID_BYTES;
-
 /// Writes the report and grid where asked; the grid's size is checked before anything is
 /// written.
 pub fn write_outputs(f: &Fused, report: Option<&Path>, grid: Option<&Path>) -> anyhow::Result<()> {
     if let Some(p) = grid {
         let g = &f.outcome.grid;
-        let region = g.occupied_region();
+        let region = g
+            .export_region(MAX_EXPORT_BYTES)
+            .with_context(|| format!("--grid {}", p.display()))?;
         let [a, b, c] = region.dims;
-        let bytes = (a as u64) * (b as u64) * (c as u64) * 4;
-        if bytes > MAX_EXPORT_BYTES {
-            anyhow::bail!(
-                "--grid {}: the grid's stored region is {a} x {b} x {c} cells, {} MiB as float32, over the export limit of {} MiB (the grid is {} x {} x {} cells); fuse with smaller --bounds or a larger --voxel to export it",
-                p.display(),
-                bytes.div_ceil(1 << 20),
-                MAX_EXPORT_BYTES >> 20,
-                g.spec.dims[0],
-                g.spec.dims[1],
-                g.spec.dims[2],
-            );
-        }
         write_grid(g, &region, p).with_context(|| format!("writing the grid {}", p.display()))?;
         if region.dims != g.spec.dims {
             let e = f.report.grid.export.as_ref();

@@ -272,6 +272,26 @@ impl Grid {
         }
     }
 
+    /// The region to export ([`Grid::occupied_region`]), or [`GridError::Export`] when its
+    /// float32 `.npy` would exceed `limit_bytes`: checked before anything is written.
+    pub fn export_region(&self, limit_bytes: u64) -> Result<Region, GridError> {
+        let region = self.occupied_region();
+        let bytes = region.dims.iter().map(|&d| d as f64).product::<f64>() * 4.0;
+        if bytes <= limit_bytes as f64 {
+            return Ok(region);
+        }
+        let [nx, ny, nz] = self.spec.dims.map(|d| d as u64);
+        Err(GridError::Export {
+            first_cell: region.first_cell,
+            dims: region.dims,
+            nx,
+            ny,
+            nz,
+            needed_mib: mib(bytes),
+            limit_mib: limit_bytes >> 20,
+        })
+    }
+
     /// Posterior probabilities (f32) of the cells of x-slab `i` (a cell index of the grid)
     /// within `region`, C order: `region.dims[1] * region.dims[2]` values.
     pub fn probability_slab(&self, region: &Region, i: usize) -> Vec<f32> {

@@ -37,6 +37,10 @@ use project::Projector;
 /// exceed it.
 pub const MAX_GRID_BYTES: u64 = 4 << 30;
 
+/// Largest `.npy` the grid is exported to (`fuse --grid`), bytes: as much as the grid itself
+/// may take. The export is written a slab at a time, so this bounds the file, not memory.
+pub const MAX_EXPORT_BYTES: u64 = MAX_GRID_BYTES;
+
 /// Bytes one stored cell costs with the log-odds blur: evidence f32, views u16 and the
 /// blur's f32 output.
 pub const BYTES_PER_CELL: u64 = 4 + 2 + 4;
@@ -118,6 +122,27 @@ pub enum GridError {
         /// Cells the stored blocks would hold.
         cells: u64,
         /// Memory they and the table would take, MiB, rounded up.
+        needed_mib: u64,
+        /// The limit in MiB.
+        limit_mib: u64,
+    },
+    /// The `.npy` export of the grid's stored region would exceed the export limit.
+    #[error(
+        "the grid's stored region is {a} x {b} x {c} cells ({first_cell:?} on, of the {nx} x {ny} x {nz} grid), {needed_mib} MiB as float32, over the export limit of {limit_mib} MiB; fuse with smaller --bounds or a larger --voxel to export it",
+        a = .dims[0], b = .dims[1], c = .dims[2]
+    )]
+    Export {
+        /// The region's first cell (i, j, k).
+        first_cell: [usize; 3],
+        /// Its cells along x, y, z.
+        dims: [usize; 3],
+        /// Cells of the grid along x.
+        nx: u64,
+        /// Cells along y.
+        ny: u64,
+        /// Cells along z.
+        nz: u64,
+        /// Bytes of the export, MiB, rounded up.
         needed_mib: u64,
         /// The limit in MiB.
         limit_mib: u64,

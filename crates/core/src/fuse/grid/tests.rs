@@ -368,6 +368,24 @@ fn hash_max_and_export_do_not_depend_on_what_is_stored() {
     assert_eq!(slab[11 * 10 + 9], p);
     assert_eq!(slab[0], sigmoid(f64::from(sp.prior_log_odds())) as f32);
     assert_eq!(dense.probability_slab(&r, 19), slab);
+    // 12 x 12 x 10 float32 cells are 5 760 bytes: refused under that, with the numbers.
+    assert_eq!(sp.export_region(5760), Ok(r));
+    let e = sp.export_region(5759).unwrap_err();
+    assert!(
+        matches!(
+            e,
+            GridError::Export {
+                dims: [12, 12, 10],
+                needed_mib: 1,
+                ..
+            }
+        ),
+        "{e:?}"
+    );
+    assert!(
+        e.to_string().starts_with("the grid's stored region is 12 x 12 x 10 cells ([8, 0, 0] on, of the 20 x 12 x 10 grid), 1 MiB as float32, over the export limit of 0 MiB"),
+        "{e}"
+    );
 }
 
 /// One frame, one tile at p = 0.9, a known camera: exactly the cells of that tile's pyramid
