@@ -106,9 +106,11 @@ pub fn find_objects(grid: &Grid, params: &ObjectParams) -> Vec<Object> {
         .collect()
 }
 
-/// The highest evidence (log-odds above the prior) of a cell seen by at least `min_views`
-/// frames; 0 when none is above the prior.
-fn peak_evidence(grid: &Grid, min_views: u16) -> f32 {
+/// Per stored block (in [`Grid::par_blocks`] order), the highest evidence (log-odds above
+/// the prior) of a cell seen by at least `min_views` frames, or 0 when none is above the
+/// prior; their maximum is the grid's peak, and a block whose own is below the grow level
+/// holds no candidate.
+fn block_peaks(grid: &Grid, min_views: u16) -> Vec<f32> {
     // Eight running maxima per block over zipped slices (evidence is never NaN, and a maximum
     // does not depend on the order it is taken in), so the compiler can vectorise the pass:
     // it runs over every stored cell once per frame during pose refinement. Cells outside the
@@ -126,7 +128,7 @@ fn peak_evidence(grid: &Grid, min_views: u16) -> f32 {
             }
             lanes.into_iter().fold(0.0f32, f32::max)
         })
-        .reduce(|| 0.0f32, f32::max)
+        .collect()
 }
 
 /// The labelling state of the stored blocks that hold candidate cells (at least the grow
@@ -153,10 +155,19 @@ type MarkedBlock = (usize, [usize; 3], Vec<(u16, bool)>);
 
 /// Marks the candidate cells (seen by `min_views`, evidence at least `grow_e`) [`GROW`];
 /// returns their states and the seeds (evidence at least `seed_e`), flat indices ascending.
-fn mark(grid: &Grid, min_views: u16, grow_e: f32, seed_e: f32) -> (States, Vec<usize>) {
+/// `peaks` are [`block_peaks`]: blocks below `grow_e` are not visited.
+fn mark(
+    grid: &Grid,
+    peaks: &[f32],
+    min_views: u16,
+    grow_e: f32,
+    seed_e: f32,
+) -> (States, Vec<usize>) {
     let marked: Vec<MarkedBlock> = grid
         .par_blocks()
-        .filter_map(|b| {
+        .zip(peaks.par_iter())
+        .filter(|&(_, &peak)| peak >= grow_e)
+        .filter_map(|(b, _)| {
             let mut cells = Vec::new();
             for_each_cell(&b, |o, _| {
                 let (v, e) = (b.views[o], b.evidence[o]);
@@ -192,14 +203,15 @@ fn mark(grid: &Grid, min_views: u16, grow_e: f32, seed_e: f32) -> (States, Vec<u
 /// Like [`find_objects`], with each object's member cells (flat indices, ascending).
 pub fn find_objects_with_cells(grid: &Grid, params: &ObjectParams) -> Vec<(Object, Vec<usize>)> {
     let spec = grid.spec;
-    let max_e = peak_evidence(grid, params.min_views);
+    let peaks = block_peaks(grid, params.min_views);
+    let max_e = peaks.iter().copied().fold(0.0f32, f32::max);
     if max_e <= 0.0 {
         return Vec::new();
     }
     let (seed_e, grow_e) = (params.seed_fraction * max_e, params.grow_fraction * max_e);
     // Seeds in flat index order: components are found in index order, whichever blocks are
     // stored.
-    let (mut states, seeds) = mark(grid, params.min_views, grow_e, seed_e);
+    let (mut states, seeds) = mark(grid, &peaks, params.min_views, grow_e, seed_e);
     let [nx, ny, nz] = spec.dims;
     let mut objects = Vec::new();
     let mut stack = Vec::new();

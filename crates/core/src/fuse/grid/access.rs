@@ -213,9 +213,20 @@ impl Grid {
         let stored = self
             .par_blocks()
             .map(|b| {
-                let mut m = f32::NEG_INFINITY;
-                for_each_cell(&b, |o, _| m = m.max(b.evidence[o]));
-                m
+                if b.extent == [BLOCK; 3] {
+                    // Eight running maxima: the compiler vectorises them.
+                    let mut lanes = [f32::NEG_INFINITY; 8];
+                    for e8 in b.evidence.chunks_exact(8) {
+                        for k in 0..8 {
+                            lanes[k] = lanes[k].max(e8[k]);
+                        }
+                    }
+                    lanes.into_iter().fold(f32::NEG_INFINITY, f32::max)
+                } else {
+                    let mut m = f32::NEG_INFINITY;
+                    for_each_cell(&b, |o, _| m = m.max(b.evidence[o]));
+                    m
+                }
             })
             .reduce(|| f32::NEG_INFINITY, f32::max);
         let max_e = if self.is_fully_stored() {

@@ -83,14 +83,23 @@ pub(crate) fn convolve<T: Sample>(
     blocks: &mut Vec<u32>,
     out: &mut Vec<T>,
 ) {
-    let nonzero: Vec<u32> = src
-        .par_chunks(BLOCK_CELLS)
-        .zip(layout.blocks.par_iter())
-        .skip(1)
-        .filter(|(cells, _)| cells.iter().any(|&v| v != T::ZERO))
-        .map(|(_, &b)| b)
-        .collect();
-    *blocks = candidates(spec, layout, &nonzero, kernel);
+    if layout.slots() - 1 == layout.table.len() {
+        // Every block stored (a dense grid): every block is computed.
+        *blocks = layout
+            .in_block_order()
+            .into_iter()
+            .map(|(b, _)| b)
+            .collect();
+    } else {
+        let nonzero: Vec<u32> = src
+            .par_chunks(BLOCK_CELLS)
+            .zip(layout.blocks.par_iter())
+            .skip(1)
+            .filter(|(cells, _)| cells.iter().any(|&v| v != T::ZERO))
+            .map(|(_, &b)| b)
+            .collect();
+        *blocks = candidates(spec, layout, &nonzero, kernel);
+    }
     out.clear();
     out.resize((blocks.len() + 1) * BLOCK_CELLS, T::ZERO);
     // Blocks of one block column are adjacent in `blocks`: each column is one task, so the
