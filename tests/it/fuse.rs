@@ -519,13 +519,23 @@ fn fuse_refuses_bad_input_with_one_line_errors_and_no_outputs() {
 fn reports_match_their_published_schema() {
     // Validated by the jsonschema package against schemas/report.schema.json, which closes
     // every object (additionalProperties: false), so a field renamed or added in the code
-    // but not in the schema fails here. A plain and a refined report cover every field.
+    // but not in the schema fails here. A plain and a refined report cover every field (the
+    // plain one sparse and without a range limit, the refined one dense with the default).
     let dir = tempfile::tempdir().unwrap();
     let model = train(dir.path());
     let mut reports = Vec::new();
     for (name, extra) in [
-        ("plain", "--no-refine-poses"),
-        ("refined", "--refine-poses"),
+        (
+            "plain",
+            &[
+                "--no-refine-poses",
+                "--grid-storage",
+                "sparse",
+                "--max-footprint",
+                "off",
+            ][..],
+        ),
+        ("refined", &["--refine-poses"][..]),
     ] {
         let rep = dir.path().join(format!("{name}.json"));
         let mut args = vec![
@@ -536,10 +546,16 @@ fn reports_match_their_published_schema() {
             "--report",
             p(&rep),
         ];
-        args.push(extra);
+        args.extend_from_slice(extra);
         ok(&objloc(&args, &[]));
         reports.push(rep);
     }
+    let plain = json(&reports[0]);
+    assert_eq!(plain["grid"]["storage"], "sparse");
+    assert!(
+        plain["options"]["max_footprint_voxels"].is_null(),
+        "{plain}"
+    );
     let refined = json(&reports[1]);
     assert!(
         refined["per_frame"][3]["correction"]["applied"].is_boolean(),

@@ -33,7 +33,7 @@ impl Grid {
         } else {
             1
         };
-        let needed = bytes_for(nblocks, slots, &budget);
+        let needed = bytes_for(nblocks, slots, budget.bytes_per_cell(storage));
         if needed > budget.max_bytes as f64 {
             let [nx, ny, nz] = spec.dims.map(|d| d as u64);
             let limit_mib = budget.max_bytes >> 20;
@@ -89,7 +89,11 @@ impl Grid {
 
     /// Bytes the grid holds at its [`Budget`]'s cost a cell, the table of blocks included.
     pub fn stored_bytes(&self) -> u64 {
-        bytes_for(self.layout.table.len(), self.layout.slots(), &self.budget) as u64
+        bytes_for(
+            self.layout.table.len(),
+            self.layout.slots(),
+            self.budget.bytes_per_cell(self.storage),
+        ) as u64
     }
 
     /// Where cell `idx` is stored, None when its block is not.
@@ -158,7 +162,11 @@ impl Grid {
 
     /// [`GridError::Allocation`] when `slots` slots would exceed the budget.
     pub(crate) fn check_budget(&self, slots: usize) -> Result<(), GridError> {
-        let needed = bytes_for(self.layout.table.len(), slots, &self.budget);
+        let needed = bytes_for(
+            self.layout.table.len(),
+            slots,
+            self.budget.bytes_per_cell(self.storage),
+        );
         if needed <= self.budget.max_bytes as f64 {
             return Ok(());
         }
@@ -333,8 +341,7 @@ pub fn for_each_cell(b: &BlockCells<'_>, mut f: impl FnMut(usize, [usize; 3])) {
     }
 }
 
-/// Bytes of a grid with `table` blocks and `slots` slots at `budget`'s cost a cell.
-fn bytes_for(table: usize, slots: usize, budget: &Budget) -> f64 {
-    (table as f64 + slots as f64) * 4.0
-        + slots as f64 * BLOCK_CELLS as f64 * budget.bytes_per_cell as f64
+/// Bytes of a grid with `table` blocks and `slots` slots at `per_cell` bytes a cell.
+fn bytes_for(table: usize, slots: usize, per_cell: f64) -> f64 {
+    (table as f64 + slots as f64) * 4.0 + slots as f64 * BLOCK_CELLS as f64 * per_cell
 }

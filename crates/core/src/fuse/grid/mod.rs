@@ -41,22 +41,29 @@ pub const MAX_GRID_BYTES: u64 = 4 << 30;
 /// may take. The export is written a slab at a time, so this bounds the file, not memory.
 pub const MAX_EXPORT_BYTES: u64 = MAX_GRID_BYTES;
 
-/// Bytes one stored cell costs with the log-odds blur: evidence f32, views u16 and the
+/// Bytes a cell of a dense grid costs with the log-odds blur: evidence f32, views u16 and the
 /// blur's f32 output.
 pub const BYTES_PER_CELL: u64 = 4 + 2 + 4;
 
-/// Bytes one stored cell costs with a blur in f64 (probability, observation): two f64
-/// buffers more.
-pub const BYTES_PER_CELL_F64_BLUR: u64 = BYTES_PER_CELL + 8 + 8;
+/// Bytes a stored cell of a sparse grid costs with the log-odds blur, as measured: the peak
+/// resident memory per stored cell of the 200-stop tour in 100 x 100 x 4 m at 2 cm was 18.3 to
+/// 18.7 bytes (26 to 150 million cells stored; docs/scale.md). Besides the dense grid's
+/// buffers, the blur's output also holds the blocks it tries around the stored ones (up to
+/// half as many again) and the views are copied when a blur re-orders the blocks.
+pub const SPARSE_BYTES_PER_CELL: u64 = 19;
+
+/// Bytes a blur in f64 (probability, observation) adds a cell: its f64 input and output (the
+/// output over the blocks tried, for a sparse grid).
+pub const F64_BLUR_BYTES_PER_CELL: u64 = 8 + 8;
 
 /// `--grid-storage auto` stores a grid densely up to this many cells (blocks rounded up; 320
 /// MiB at [`BYTES_PER_CELL`]) and sparsely beyond: every room-sized grid is dense.
 pub const AUTO_DENSE_MAX_CELLS: usize = 1 << 25;
 
-/// Evidence (log-odds) of a magnitude below this is 0 after a blur: 2^-20, below the f32
-/// resolution of a log-odds near the prior's (about 5, where a step is 4.8e-7). Without it
-/// the blur's tails would reach one more kernel width every blur, in values that mean
-/// nothing; with it, a region at the prior stays exactly at the prior.
+/// Evidence (log-odds) of a magnitude below this is 0 after a blur: 2^-20, a likelihood ratio
+/// within 1e-6 of 1 and two f32 steps of a log-odds near the prior's (magnitude 4 to 8, where
+/// a step is 4.8e-7), so flushing moves a cell's log-odds by at most that. Without it the
+/// blur's tails would reach one more kernel width every blur, in values that mean nothing.
 pub const FLUSH_EVIDENCE: f32 = 1.0 / (1u32 << 20) as f32;
 
 /// Why a grid cannot be built from its options, or grow; checked before allocating.
@@ -365,16 +372,35 @@ impl GridStorage {
 pub struct Budget {
     /// Largest allocation, bytes, the table of blocks included.
     pub max_bytes: u64,
-    /// Bytes a stored cell costs, its blur's buffers included.
-    pub bytes_per_cell: u64,
+    /// Whether the blur works in f64 (probability, observation), which costs
+    /// [`F64_BLUR_BYTES_PER_CELL`] more a cell (times 1.5 when sparse).
+    pub f64_blur: bool,
 }
 
 impl Default for Budget {
     fn default() -> Self {
         Self {
             max_bytes: MAX_GRID_BYTES,
-            bytes_per_cell: BYTES_PER_CELL,
+            f64_blur: false,
         }
+    }
+}
+
+impl Budget {
+    /// Bytes a stored cell costs with `storage` (dense or sparse).
+    pub fn bytes_per_cell(&self, storage: GridStorage) -> f64 {
+        let sparse = storage == GridStorage::Sparse;
+        let base = if sparse {
+            SPARSE_BYTES_PER_CELL
+        } else {
+            BYTES_PER_CELL
+        } as f64;
+        let f64_blur = if self.f64_blur {
+            F64_BLUR_BYTES_PER_CELL as f64 * if sparse { 1.5 } else { 1.0 }
+        } else {
+            0.0
+        };
+        base + f64_blur
     }
 }
 

@@ -294,7 +294,7 @@ fn spec_dims_and_refusals_name_the_sizes() {
     assert_eq!(GridStorage::Auto.resolve(&big), GridStorage::Sparse);
     assert_eq!(GridStorage::Auto.resolve(&s), GridStorage::Dense);
     let g = Grid::with_storage(big, 0.01, GridStorage::Auto, Budget::default()).unwrap();
-    assert_eq!(g.stored_bytes(), 625 * 625 * 25 * 4 + 4 + 512 * 10);
+    assert_eq!(g.stored_bytes(), 625 * 625 * 25 * 4 + 4 + 512 * 19);
     match Grid::with_storage(big, 0.01, GridStorage::Dense, Budget::default()).unwrap_err() {
         GridError::TooLarge { needed_mib, .. } => {
             let blocks = 625u64 * 625 * 25;
@@ -313,10 +313,10 @@ fn spec_dims_and_refusals_name_the_sizes() {
 fn a_sparse_grid_over_its_budget_stops_with_the_numbers() {
     let spec = GridSpec::from_bounds([-2.0, -2.0, 0.0], [2.0, 2.0, 1.0], 0.05).unwrap();
     // 80 x 80 x 20 cells in 10 x 10 x 3 blocks: room for the table, the zero block and 9
-    // more.
+    // more at 19 bytes a cell.
     let budget = Budget {
-        max_bytes: 300 * 4 + 10 * 4 + 10 * 512 * 10,
-        bytes_per_cell: 10,
+        max_bytes: 300 * 4 + 10 * 4 + 10 * 512 * SPARSE_BYTES_PER_CELL,
+        f64_blur: false,
     };
     let mut g = Grid::with_storage(spec, 0.01, GridStorage::Sparse, budget).unwrap();
     let cam = Camera::with_hfov(64, 48, 1.0);

@@ -1,8 +1,7 @@
 //! The fuser state: grid, blur scratch and options; takes typed values, returns state.
 
 use crate::fuse::grid::{
-    BYTES_PER_CELL, BYTES_PER_CELL_F64_BLUR, Budget, Grid, GridError, GridSpec, MAX_GRID_BYTES,
-    TileEvidence, logit, max_depth_m,
+    Budget, Grid, GridError, GridSpec, MAX_GRID_BYTES, TileEvidence, logit, max_depth_m,
 };
 use crate::fuse::motion::{BlurMode, Blurrer, Segment};
 use crate::types::geometry::{Camera, Iso3, yaw_of};
@@ -33,11 +32,7 @@ impl Fuser {
     pub fn new(spec: GridSpec, prior: f64, options: FuseOptions) -> Result<Self, GridError> {
         let budget = Budget {
             max_bytes: MAX_GRID_BYTES,
-            bytes_per_cell: if options.blur == BlurMode::LogOdds {
-                BYTES_PER_CELL
-            } else {
-                BYTES_PER_CELL_F64_BLUR
-            },
+            f64_blur: options.blur != BlurMode::LogOdds,
         };
         let mut grid = Grid::with_storage(spec, prior, options.grid_storage, budget)?;
         if let Some((lo, hi)) = options.clamp {
