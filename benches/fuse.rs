@@ -235,25 +235,31 @@ fn main() {
         let (mut g, cam_from_odom, cam, ev) = setup(n);
         let reps = if n <= 100 { 21 } else { 5 };
         let update = median_ms(reps, || {
-            black_box(g.integrate(&cam_from_odom, &cam, &ev));
+            black_box(
+                g.integrate(&cam_from_odom, &cam, &ev, f64::INFINITY)
+                    .unwrap(),
+            );
         });
         // The camera inside the grid, as on a tour through a room: most columns lie outside
         // the view and are skipped after a bound per column.
         let inside =
             (iso_from_xy_yaw(0.0, 0.1, 0.05) * camera_mount([0.0, 0.0, 0.4], 0.25)).inverse();
         let update_inside = median_ms(reps, || {
-            black_box(g.integrate(&inside, &cam, &ev));
+            black_box(g.integrate(&inside, &cam, &ev, f64::INFINITY).unwrap());
         });
         let mut b = Blurrer::default();
         // A 0.5 m drive at sigma_v 0.01 m/s x 1.7 s and a 90 degree turn at 0.01 rad/s x 3 s.
         let translate = median_ms(reps.min(9), || {
             b.translate(&mut g, [0.8, 0.6], 0.017, BlurMode::LogOdds)
+                .unwrap()
         });
         let rotate = median_ms(reps.min(9), || {
             b.rotate(&mut g, [0.0, -1.5], 0.03, BlurMode::LogOdds)
+                .unwrap()
         });
         let prob = median_ms(reps.min(9), || {
             b.translate(&mut g, [0.8, 0.6], 0.017, BlurMode::Probability)
+                .unwrap()
         });
         if n == 100 {
             at100 = (update, translate.max(rotate));

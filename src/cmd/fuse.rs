@@ -11,6 +11,7 @@ use crate::viz::{
     self, VizArgs,
     fuse::{FuseViz, VizOptions},
 };
+use objloc_core::fuse::grid::{GridStorage, MAX_EXPORT_BYTES};
 use objloc_core::fuse::motion::BlurMode;
 use objloc_core::fuse::objects::ObjectParams;
 use objloc_core::fuse::replay::{FuseOptions, Locate, Outcome, PoseSource, SessionFit, replay};
@@ -33,7 +34,9 @@ pub struct Args {
     /// Write the report (JSON, schema in schemas/report.schema.json).
     #[arg(long, value_name = "OUT.json")]
     pub report: Option<PathBuf>,
-    /// Write the posterior probabilities as a float32 .npy of shape (nx, ny, nz).
+    /// Write the posterior probabilities as a float32 .npy: the whole grid, shape (nx, ny,
+    /// nz), when it is stored dense; the box of its stored blocks when sparse (the report's
+    /// grid.export and stdout say where it lies).
     #[arg(long, value_name = "OUT.npy")]
     pub grid: Option<PathBuf>,
     #[command(flatten)]
@@ -103,6 +106,16 @@ pub struct FuseArgs {
     /// Evidence every cell of an object must have, as a fraction of the grid's highest.
     #[arg(long, default_value_t = ObjectParams::default().grow_fraction)]
     pub grow_fraction: f32,
+    /// Range limit of a frame's update: it stops at the depth where a tile's footprint
+    /// exceeds this many cells (`off`: no limit). Beyond it one tile's value covers a wall of
+    /// cells and locates nothing, and a building-sized grid would store every cell in view.
+    #[arg(long, value_name = "CELLS|off", default_value_t = Footprint(FuseOptions::default().max_footprint_voxels), value_parser = parse_footprint)]
+    pub max_footprint: Footprint,
+    /// How the grid is stored: dense (every cell), sparse (only the blocks of 8 x 8 x 8 cells
+    /// the views and the blur reach) or auto (dense up to 33.5 million cells, sparse beyond).
+    /// The grid's values do not depend on it.
+    #[arg(long, value_enum, default_value_t = GridStorage::Auto)]
+    pub grid_storage: GridStorage,
     /// No progress bar (there is none anyway when stderr is not a terminal).
     #[arg(long, short)]
     pub quiet: bool,
@@ -119,6 +132,33 @@ fn parse_floats(s: &str, n: usize) -> Result<Vec<f64>, String> {
         ));
     }
     Ok(v)
+}
+
+/// `--max-footprint`: a number of cells, or no limit.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Footprint(pub Option<f64>);
+
+impl std::fmt::Display for Footprint {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self.0 {
+            Some(n) => write!(f, "{n}"),
+            None => write!(f, "off"),
+        }
+    }
+}
+
+/// A positive, finite number of cells, or `off`.
+fn parse_footprint(s: &str) -> Result<Footprint, String> {
+    if s.trim() == "off" {
+        return Ok(Footprint(None));
+    }
+    let v: f64 = s.trim().parse().map_err(|e| format!("{s:?}: {e}"))?;
+    if !(v.is_finite() && v > 0.0) {
+        return Err(format!(
+            "expected a number of cells above 0, or off, got {s}"
+        ));
+    }
+    Ok(Footprint(Some(v)))
 }
 
 fn parse_bounds(s: &str) -> Result<([f64; 3], [f64; 3]), String> {
@@ -173,6 +213,8 @@ impl FuseArgs {
                 refinement: !self.refine_poses && !self.no_refine_poses,
                 locate: self.locate.is_none(),
             },
+            max_footprint_voxels: self.max_footprint.0,
+            grid_storage: self.grid_storage,
         }
         .normalised()
     }
@@ -267,17 +309,59 @@ pub fn fuse(
     Ok(Fused { outcome, report })
 }
 
-/// Writes the report and grid where asked.
+/// Writes the report and grid where asked; the grid's size is checked before anything is
+/// written.
 pub fn write_outputs(f: &Fused, report: Option<&Path>, grid: Option<&Path>) -> anyhow::Result<()> {
     if let Some(p) = grid {
-        let [nx, ny, nz] = f.outcome.grid.spec.dims;
-        objloc_core::io::npy::write(p, &[nx, ny, nz], &f.outcome.grid.probabilities())
-            .with_context(|| format!("writing the grid {}", p.display()))?;
+        let g = &f.outcome.grid;
+        let region = g
+            .export_region(MAX_EXPORT_BYTES)
+            .with_context(|| format!("--grid {}", p.display()))?;
+        let [a, b, c] = region.dims;
+        write_grid(g, &region, p).with_context(|| format!("writing the grid {}", p.display()))?;
+        if region.dims != g.spec.dims {
+            let e = f.report.grid.export.as_ref();
+            let o = e.map_or([0.0; 3], |e| e.origin_m);
+            let [i, j, k] = region.first_cell;
+            println!(
+                "grid {}: cells {i}..{}, {j}..{}, {k}..{} of the {} x {} x {} grid (the stored blocks), shape ({a}, {b}, {c}), min corner ({:.3}, {:.3}, {:.3}) m",
+                p.display(),
+                i + a,
+                j + b,
+                k + c,
+                g.spec.dims[0],
+                g.spec.dims[1],
+                g.spec.dims[2],
+                o[0],
+                o[1],
+                o[2]
+            );
+        }
     }
     if let Some(p) = report {
         objloc_core::io::output::write_atomic(p, f.report.to_json().as_bytes())
             .with_context(|| format!("writing the report {}", p.display()))?;
     }
+    Ok(())
+}
+
+/// The probabilities of `region` of `grid` to `path` as float32 `.npy`, x-slab by x-slab
+/// (eight made at a time in parallel), never whole in memory.
+fn write_grid(
+    grid: &objloc_core::fuse::grid::Grid,
+    region: &objloc_core::fuse::grid::Region,
+    path: &Path,
+) -> anyhow::Result<()> {
+    use rayon::prelude::*;
+    let first = region.first_cell[0];
+    let slabs: Vec<usize> = (first..first + region.dims[0]).collect();
+    let parts = slabs.chunks(8).flat_map(|chunk| {
+        chunk
+            .par_iter()
+            .map(|&i| grid.probability_slab(region, i))
+            .collect::<Vec<_>>()
+    });
+    objloc_core::io::npy::write_parts(path, &region.dims, parts)?;
     Ok(())
 }
 
@@ -302,6 +386,16 @@ pub fn print_summary(f: &Fused) {
         r.grid.prior,
         &r.grid.sha256[..16]
     );
+    if r.grid.storage == Some(GridStorage::Sparse) {
+        let g = &f.outcome.grid;
+        println!(
+            "sparse grid: {} of {} cells stored ({:.3} %), {} MiB",
+            r.grid.stored_cells,
+            g.spec.cells(),
+            100.0 * r.grid.stored_cells as f64 / g.spec.cells().max(1) as f64,
+            g.stored_bytes().div_ceil(1 << 20)
+        );
+    }
     if r.objects.is_empty() {
         println!("no object found");
     }

@@ -487,10 +487,13 @@ impl FuseViz {
                 .with_value_range([f64::from(o.grid_min_posterior), 1.0]),
         )
         .map_err(log_err)?;
-        let [nx, ny, nz] = grid.spec.dims;
-        projection(rec, "projections/x", &s.along_x, ny, nz)?;
-        projection(rec, "projections/y", &s.along_y, nx, nz)?;
-        projection(rec, "projections/z", &s.along_z, nx, ny)?;
+        // Of the stored region: the whole grid when dense.
+        let [nx, ny, nz] = s.region.dims;
+        if nx * ny * nz > 0 {
+            projection(rec, "projections/x", &s.along_x, ny, nz)?;
+            projection(rec, "projections/y", &s.along_y, nx, nz)?;
+            projection(rec, "projections/z", &s.along_z, nx, ny)?;
+        }
 
         Ok(s)
     }

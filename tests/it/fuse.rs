@@ -122,6 +122,9 @@ fn fuse_is_bit_identical_across_runs_and_thread_counts() {
     assert!(grids.iter().all(|g| *g == grids[0]));
 }
 
+/// The update checked cell for cell against an independent NumPy implementation, once as by
+/// default (a dense grid, the range limit beyond the room) and once sparse with a range limit
+/// of 2 cells (2.2 m for this camera at 4 cm), whose `.npy` is the stored blocks' box.
 #[test]
 fn grid_matches_an_independent_numpy_update() {
     let dir = tempfile::tempdir().unwrap();
@@ -138,10 +141,17 @@ fn grid_matches_an_independent_numpy_update() {
         ],
         &[],
     ));
-    let rep = dir.path().join("r.json");
-    let grid = dir.path().join("g.npy");
-    ok(&objloc(
-        &[
+    let mut updated_dense = 0;
+    for (run, extra) in [
+        &[][..],
+        &["--grid-storage", "sparse", "--max-footprint", "2"],
+    ]
+    .iter()
+    .enumerate()
+    {
+        let rep = dir.path().join(format!("r{run}.json"));
+        let grid = dir.path().join(format!("g{run}.npy"));
+        let mut args = vec![
             "fuse",
             "recordings/chair-tour.mcap",
             "--model",
@@ -154,29 +164,110 @@ fn grid_matches_an_independent_numpy_update() {
             p(&rep),
             "--grid",
             p(&grid),
-        ],
-        &[],
-    ));
-    let v = py_json(
-        "independent_update.py",
-        &[
-            repo_dir().join("recordings/chair-tour.mcap"),
-            pred.join("tile_probs.npy"),
-            pred.join("stamps.npy"),
-            rep.clone(),
-            grid,
-        ],
+            "--no-rerun",
+        ];
+        args.extend_from_slice(extra);
+        let out = ok(&objloc(&args, &[]));
+        let v = py_json(
+            "independent_update.py",
+            &[
+                repo_dir().join("recordings/chair-tour.mcap"),
+                pred.join("tile_probs.npy"),
+                pred.join("stamps.npy"),
+                rep.clone(),
+                grid,
+            ],
+        );
+        assert_eq!(v["differing"], 0, "run {run}: {v}");
+        // The comparison is not vacuous: 8 frames updated most of the grid, and the object
+        // rose.
+        let r = json(&rep);
+        let updated_by_objloc: u64 = r["per_frame"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|f| f["cells_updated"].as_u64().unwrap())
+            .sum();
+        assert_eq!(v["updated"].as_u64().unwrap(), updated_by_objloc, "{v}");
+        assert!(v["above_half"].as_u64().unwrap() > 500, "{v}");
+        if run == 0 {
+            updated_dense = updated_by_objloc;
+            assert_eq!(r["grid"]["storage"], "dense");
+            assert_eq!(r["grid"]["export"]["dims"], r["grid"]["dims"]);
+        } else {
+            // The limit stops the update well short of the room's walls; the sparse grid
+            // stores a part of the room and exports that part, saying where.
+            assert!(
+                updated_by_objloc * 10 < updated_dense * 9,
+                "{updated_by_objloc}"
+            );
+            assert_eq!(r["grid"]["storage"], "sparse");
+            let e = &r["grid"]["export"];
+            let cells: u64 = (0..3).map(|a| e["dims"][a].as_u64().unwrap()).product();
+            assert!(cells < 135 * 135 * 43, "{e}");
+            assert!(
+                out.contains(&format!("grid {}: cells ", p(&dir.path().join("g1.npy")))),
+                "{out}"
+            );
+        }
+    }
+}
+
+/// Dense and sparse storage of the same replay (default options, pose refinement on): the
+/// same grid (hash), objects and per-frame record; the sparse `.npy` is the dense one's box.
+#[test]
+fn sparse_and_dense_fuse_the_same_grid() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = train(dir.path());
+    let mut reports = Vec::new();
+    for storage in ["dense", "sparse"] {
+        let rep = dir.path().join(format!("{storage}.json"));
+        let grid = dir.path().join(format!("{storage}.npy"));
+        ok(&objloc(
+            &[
+                "fuse",
+                "recordings/two-chairs-tour.mcap",
+                "--model",
+                p(&model),
+                "--grid-storage",
+                storage,
+                "--report",
+                p(&rep),
+                "--grid",
+                p(&grid),
+                "--no-rerun",
+            ],
+            &[],
+        ));
+        reports.push(json(&rep));
+    }
+    let (d, s) = (&reports[0], &reports[1]);
+    assert_eq!(d["grid"]["sha256"], s["grid"]["sha256"]);
+    assert_eq!(d["objects"], s["objects"]);
+    assert_eq!(d["object_cells"], s["object_cells"]);
+    assert_eq!(d["per_frame"], s["per_frame"]);
+    let (dshape, dense) = objloc_core::io::npy::read_f32(&dir.path().join("dense.npy")).unwrap();
+    let (sshape, sparse) = objloc_core::io::npy::read_f32(&dir.path().join("sparse.npy")).unwrap();
+    let e = &s["grid"]["export"];
+    let at = |v: &Value, a: usize| v[a].as_u64().unwrap() as usize;
+    let (first, dims) = (
+        [0, 1, 2].map(|a| at(&e["first_cell"], a)),
+        [0, 1, 2].map(|a| at(&e["dims"], a)),
     );
-    assert_eq!(v["differing"], 0, "{v}");
-    // The comparison is not vacuous: 8 frames updated most of the grid, and the object rose.
-    let updated_by_objloc: u64 = json(&rep)["per_frame"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|f| f["cells_updated"].as_u64().unwrap())
-        .sum();
-    assert_eq!(v["updated"].as_u64().unwrap(), updated_by_objloc, "{v}");
-    assert!(v["above_half"].as_u64().unwrap() > 500, "{v}");
+    assert_eq!(sshape, dims.to_vec());
+    for i in 0..dims[0] {
+        for j in 0..dims[1] {
+            for k in 0..dims[2] {
+                let di = ((first[0] + i) * dshape[1] + first[1] + j) * dshape[2] + first[2] + k;
+                let si = (i * dims[1] + j) * dims[2] + k;
+                assert_eq!(
+                    sparse[si].to_bits(),
+                    dense[di].to_bits(),
+                    "cell {i} {j} {k}"
+                );
+            }
+        }
+    }
 }
 
 #[test]
@@ -428,13 +519,23 @@ fn fuse_refuses_bad_input_with_one_line_errors_and_no_outputs() {
 fn reports_match_their_published_schema() {
     // Validated by the jsonschema package against schemas/report.schema.json, which closes
     // every object (additionalProperties: false), so a field renamed or added in the code
-    // but not in the schema fails here. A plain and a refined report cover every field.
+    // but not in the schema fails here. A plain and a refined report cover every field (the
+    // plain one sparse and without a range limit, the refined one dense with the default).
     let dir = tempfile::tempdir().unwrap();
     let model = train(dir.path());
     let mut reports = Vec::new();
     for (name, extra) in [
-        ("plain", "--no-refine-poses"),
-        ("refined", "--refine-poses"),
+        (
+            "plain",
+            &[
+                "--no-refine-poses",
+                "--grid-storage",
+                "sparse",
+                "--max-footprint",
+                "off",
+            ][..],
+        ),
+        ("refined", &["--refine-poses"][..]),
     ] {
         let rep = dir.path().join(format!("{name}.json"));
         let mut args = vec![
@@ -445,10 +546,16 @@ fn reports_match_their_published_schema() {
             "--report",
             p(&rep),
         ];
-        args.push(extra);
+        args.extend_from_slice(extra);
         ok(&objloc(&args, &[]));
         reports.push(rep);
     }
+    let plain = json(&reports[0]);
+    assert_eq!(plain["grid"]["storage"], "sparse");
+    assert!(
+        plain["options"]["max_footprint_voxels"].is_null(),
+        "{plain}"
+    );
     let refined = json(&reports[1]);
     assert!(
         refined["per_frame"][3]["correction"]["applied"].is_boolean(),

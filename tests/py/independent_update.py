@@ -2,11 +2,14 @@
 
 Reads the session's /odom, /tf_static and /camera/camera_info with the Python mcap +
 mcap-ros2-support readers (not objloc), the tile head's probability maps that `objloc predict`
-wrote (tile_probs.npy: what the fuser integrates), and the grid's spec from the fuse report. For every frame, every cell whose centre
-lies in front of the camera and projects into a tile gets log-odds += logit(p) -
+wrote (tile_probs.npy: what the fuser integrates), and the grid's spec from the fuse report.
+For every frame, every cell whose centre lies in front of the camera, no deeper than the
+report's range limit (options.max_footprint_voxels: where a tile's footprint, depth * 8 /
+min(fx, fy), exceeds that many cells), and projects into a tile gets log-odds += logit(p) -
 logit(prior). No motion blur (the fuse must run with both sigmas 0). Compares the posterior
-with objloc's --grid and prints JSON: cells, cells that differ, largest difference, cells the
-frames updated.
+with objloc's --grid (the cells the report's grid.export names: the whole grid when dense,
+the stored blocks' box when sparse) and prints JSON: cells compared, cells that differ,
+largest difference, cells the frames updated (in the whole grid), cells above 0.5.
 
 usage: independent_update.py SESSION TILE_PROBS.npy STAMPS.npy REPORT.json GRID.npy
 """
@@ -61,6 +64,8 @@ with open(session, "rb") as f:
 
 tile = 8
 rows, cols = probs.shape[1], probs.shape[2]
+n_fp = report["options"].get("max_footprint_voxels")
+zmax = np.inf if n_fp is None else n_fp * voxel * min(K[0, 0], K[1, 1]) / tile
 i, j, k = np.meshgrid(np.arange(nx), np.arange(ny), np.arange(nz), indexing="ij")
 centres = origin + (np.stack([i, j, k], axis=-1) + 0.5) * voxel
 L = np.full((nx, ny, nz), logit(prior))
@@ -71,7 +76,7 @@ for n, stamp in enumerate(stamps):
     r_cam = r_base @ mount[1]
     pc = (centres - t_cam) @ r_cam  # rows of R^T (c - t)
     z = pc[..., 2]
-    front = z > 1e-9
+    front = (z > 1e-9) & (z <= zmax)
     zs = np.where(front, z, 1.0)
     u = K[0, 0] * pc[..., 0] / zs + K[0, 2]
     v = K[1, 1] * pc[..., 1] / zs + K[1, 2]
@@ -82,7 +87,11 @@ for n, stamp in enumerate(stamps):
     updated += int(inside.sum())
 
 posterior = 1 / (1 + np.exp(-L))
+export = g.get("export") or {"first_cell": [0, 0, 0], "dims": [nx, ny, nz]}
+(i0, j0, k0), (a, b, c) = export["first_cell"], export["dims"]
+posterior = posterior[i0:i0 + a, j0:j0 + b, k0:k0 + c]
 ours = np.load(grid_path).astype(np.float64)
+assert ours.shape == posterior.shape, (ours.shape, posterior.shape)
 diff = np.abs(ours - posterior)
 print(
     json.dumps(

@@ -5,11 +5,16 @@
 //! Invariants: deterministic quadrature (fixed sample offsets and Gaussian weights, no random
 //! sampling); each output cell is computed on its own from the old grid, so results are
 //! bit-identical for any thread count; a sigma of 0 leaves the grid untouched, bit for bit;
-//! the world outside the grid is taken to be at the prior. No I/O.
+//! the world outside the grid is taken to be at the prior. Every blur averages the offset
+//! from the prior (evidence, or the probability's or likelihood ratio's offset), so a region
+//! at the prior stays exactly at the prior, and values that round below
+//! [`FLUSH_EVIDENCE`] become 0: a dense and a sparse grid are blurred alike (the grid's
+//! [`crate::fuse::grid::convolve`] applies the kernels defined here). No I/O.
 
 use rayon::prelude::*;
 
-use crate::fuse::grid::{Grid, sigmoid};
+use crate::fuse::grid::convolve::{ColumnKernel, Sample, convolve};
+use crate::fuse::grid::{FLUSH_EVIDENCE, Grid, GridError, GridSpec, sigmoid};
 
 /// What the blur averages.
 #[derive(
@@ -111,120 +116,91 @@ fn gaussian_weights(n: usize, spacing: f64, sigma: f64) -> Vec<f64> {
     w.into_iter().map(|x| x / sum).collect()
 }
 
-/// The blur's kernels on a plain buffer in grid order: `src` -> `dst`, the world outside
-/// the grid at `outside`. Each returns false, leaving `dst` untouched, when the blur is the
-/// identity (sigma 0 or below a sample). Generic over the sample type: log-odds are blurred
-/// in f32, the grid's own type (no conversion passes, half the memory traffic of f64);
-/// probabilities and likelihood ratios in f64, since f32 cannot hold 1 - 1e-10 or the
-/// dynamic range of e^40.
-pub mod kernel {
-    use super::*;
-    use crate::fuse::grid::GridSpec;
+/// The drive's kernel: a Gaussian of `sigma_m` along a direction in x and y, sampled a whole
+/// cell apart along the direction's major axis, bilinear across it.
+pub(crate) struct Translate {
+    major_x: bool,
+    slope: f64,
+    n: usize,
+    weights: Vec<f64>,
+}
 
-    /// A blur buffer's element: weights are computed in f64 and converted once per use.
-    pub trait Sample:
-        Copy + Send + Sync + std::ops::AddAssign + std::ops::Mul<Output = Self> + 'static
-    {
-        /// The additive identity.
-        const ZERO: Self;
-        /// A value computed in f64, converted (rounded, for f32).
-        fn from_f64(x: f64) -> Self;
-    }
-    impl Sample for f64 {
-        const ZERO: Self = 0.0;
-        #[inline]
-        fn from_f64(x: f64) -> Self {
-            x
-        }
-    }
-    impl Sample for f32 {
-        const ZERO: Self = 0.0;
-        #[inline]
-        fn from_f64(x: f64) -> Self {
-            x as f32
-        }
-    }
-
-    /// Along the unit direction `dir_xy` with standard deviation `sigma_m`.
-    pub fn translate<T: Sample>(
-        spec: &GridSpec,
-        src: &[T],
-        dst: &mut [T],
-        dir_xy: [f64; 2],
-        sigma_m: f64,
-        outside: T,
-    ) -> bool {
+impl Translate {
+    /// Along the unit direction `dir_xy` with standard deviation `sigma_m`; None when the
+    /// blur is the identity (sigma 0, or below one sample).
+    pub(crate) fn new(spec: &GridSpec, dir_xy: [f64; 2], sigma_m: f64) -> Option<Self> {
         let norm = dir_xy[0].hypot(dir_xy[1]);
         if !(sigma_m > 0.0 && sigma_m.is_finite() && norm > 1e-12) {
-            return false;
+            return None;
         }
         let (dx, dy) = (dir_xy[0] / norm, dir_xy[1] / norm);
-        let voxel = spec.voxel_size_m;
         // Step one whole cell along the major axis; the minor axis moves by a fraction.
         let major_x = dx.abs() >= dy.abs();
         let (major, minor) = if major_x { (dx, dy) } else { (dy, dx) };
-        let spacing_m = voxel / major.abs();
-        let slope = minor / major;
+        let spacing_m = spec.voxel_size_m / major.abs();
         let n = ((SPAN_SIGMAS * sigma_m / spacing_m).ceil() as usize).min(MAX_SAMPLES_PER_SIDE);
-        if n == 0 {
-            return false;
+        (n > 0).then(|| Self {
+            major_x,
+            slope: minor / major,
+            n,
+            weights: gaussian_weights(n, spacing_m, sigma_m),
+        })
+    }
+}
+
+impl ColumnKernel for Translate {
+    fn reach_cells(&self, _lo: [usize; 2], _hi: [usize; 2]) -> [usize; 2] {
+        // Whole cells along the major axis; across it the slope's fraction and the bilinear
+        // neighbour.
+        let minor = (self.n as f64 * self.slope.abs()).ceil() as usize + 1;
+        if self.major_x {
+            [self.n, minor]
+        } else {
+            [minor, self.n]
         }
-        let weights = gaussian_weights(n, spacing_m, sigma_m);
-        let [nx, ny, nz] = spec.dims;
-        let col = |i: i64, j: i64| -> Option<&[T]> {
-            (i >= 0 && j >= 0 && (i as usize) < nx && (j as usize) < ny).then(|| {
-                let start = (i as usize * ny + j as usize) * nz;
-                &src[start..start + nz]
-            })
-        };
-        dst.par_chunks_mut(ny * nz)
-            .enumerate()
-            .for_each(|(i, slab)| {
-                for j in 0..ny {
-                    let acc = &mut slab[j * nz..(j + 1) * nz];
-                    acc.iter_mut().for_each(|a| *a = T::ZERO);
-                    for (s, &w) in weights.iter().enumerate() {
-                        let k = s as f64 - n as f64;
-                        let minor_pos = if major_x { j as f64 } else { i as f64 } - k * slope;
-                        let m0 = floor_fast(minor_pos);
-                        let f = minor_pos - m0;
-                        let major_pos = if major_x { i as i64 } else { j as i64 } - (k as i64);
-                        for (m, wm) in [(m0 as i64, 1.0 - f), (m0 as i64 + 1, f)] {
-                            if wm == 0.0 {
-                                continue;
-                            }
-                            let (ci, cj) = if major_x {
-                                (major_pos, m)
-                            } else {
-                                (m, major_pos)
-                            };
-                            let ww = T::from_f64(w * wm);
-                            match col(ci, cj) {
-                                Some(c) => acc.iter_mut().zip(c).for_each(|(a, &v)| *a += ww * v),
-                                None => acc.iter_mut().for_each(|a| *a += ww * outside),
-                            }
-                        }
-                    }
-                }
-            });
-        true
     }
 
-    /// In angle about the vertical axis through `center_xy` with standard deviation
-    /// `sigma_rad`.
-    pub fn rotate<T: Sample>(
-        spec: &GridSpec,
-        src: &[T],
-        dst: &mut [T],
-        center_xy: [f64; 2],
-        sigma_rad: f64,
-        outside: T,
-    ) -> bool {
-        if !(sigma_rad > 0.0 && sigma_rad.is_finite() && center_xy.iter().all(|c| c.is_finite())) {
-            return false;
+    fn samples(&self, i: usize, j: usize, out: &mut Vec<([i64; 2], f64)>) {
+        let n = self.n;
+        for (s, &w) in self.weights.iter().enumerate() {
+            let k = s as f64 - n as f64;
+            let minor_pos = if self.major_x { j as f64 } else { i as f64 } - k * self.slope;
+            let m0 = floor_fast(minor_pos);
+            let f = minor_pos - m0;
+            let major_pos = if self.major_x { i as i64 } else { j as i64 } - (k as i64);
+            for (m, wm) in [(m0 as i64, 1.0 - f), (m0 as i64 + 1, f)] {
+                if wm == 0.0 {
+                    continue;
+                }
+                let c = if self.major_x {
+                    [major_pos, m]
+                } else {
+                    [m, major_pos]
+                };
+                out.push((c, w * wm));
+            }
         }
-        let voxel = spec.voxel_size_m;
-        let [nx, ny, nz] = spec.dims;
+    }
+}
+
+/// The turn's kernel: a Gaussian of `sigma_rad` in angle about a vertical axis, sampled along
+/// each cell's arc (see [`samples_per_side`]), bilinear in x and y.
+pub(crate) struct Rotate {
+    spec: GridSpec,
+    center_xy: [f64; 2],
+    sigma_rad: f64,
+    n_max: usize,
+    /// Per sample count n: (weight, sin, cos) of each of the 2n + 1 angles.
+    tables: Vec<Vec<(f64, f64, f64)>>,
+}
+
+impl Rotate {
+    /// About the vertical axis through `center_xy` with standard deviation `sigma_rad`; None
+    /// when the blur is the identity (sigma 0).
+    pub(crate) fn new(spec: &GridSpec, center_xy: [f64; 2], sigma_rad: f64) -> Option<Self> {
+        if !(sigma_rad > 0.0 && sigma_rad.is_finite() && center_xy.iter().all(|c| c.is_finite())) {
+            return None;
+        }
         // Columns with the same sample count share angles, sines and weights: computed once
         // per count here rather than once per column.
         let (lo, hi) = (spec.origin_m, spec.max_m());
@@ -237,8 +213,8 @@ pub mod kernel {
         .iter()
         .map(|&(x, y)| (x - center_xy[0]).hypot(y - center_xy[1]))
         .fold(0.0f64, f64::max);
-        let n_max = samples_per_side(sigma_rad * r_max, voxel);
-        let tables: Vec<Vec<(f64, f64, f64)>> = (0..=n_max)
+        let n_max = samples_per_side(sigma_rad * r_max, spec.voxel_size_m);
+        let tables = (0..=n_max)
             .map(|n| {
                 if n == 0 {
                     return Vec::new();
@@ -254,178 +230,240 @@ pub mod kernel {
                     .collect()
             })
             .collect();
-        dst.par_chunks_mut(ny * nz)
-            .enumerate()
-            .for_each(|(i, slab)| {
-                for j in 0..ny {
-                    let acc = &mut slab[j * nz..(j + 1) * nz];
-                    let c = spec.center(i, j, 0);
-                    let (rx, ry) = (c[0] - center_xy[0], c[1] - center_xy[1]);
-                    let radius = rx.hypot(ry);
-                    // Samples a cell apart along the arc at this radius.
-                    let n = samples_per_side(sigma_rad * radius, voxel).min(n_max);
-                    let start = (i * ny + j) * nz;
-                    if n == 0 {
-                        acc.copy_from_slice(&src[start..start + nz]);
-                        continue;
-                    }
-                    acc.iter_mut().for_each(|a| *a = T::ZERO);
-                    for &(w, sn, cs) in &tables[n] {
-                        // Source of the value that the rotation by phi carries here.
-                        let sx = center_xy[0] + cs * rx + sn * ry;
-                        let sy = center_xy[1] - sn * rx + cs * ry;
-                        let fx = (sx - spec.origin_m[0]) / voxel - 0.5;
-                        let fy = (sy - spec.origin_m[1]) / voxel - 0.5;
-                        let (x0, y0) = (floor_fast(fx), floor_fast(fy));
-                        let (ax, ay) = (fx - x0, fy - y0);
-                        for (ci, wx) in [(x0 as i64, 1.0 - ax), (x0 as i64 + 1, ax)] {
-                            for (cj, wy) in [(y0 as i64, 1.0 - ay), (y0 as i64 + 1, ay)] {
-                                let ww = w * wx * wy;
-                                if ww == 0.0 {
-                                    continue;
-                                }
-                                let ww = T::from_f64(ww);
-                                if ci >= 0 && cj >= 0 && (ci as usize) < nx && (cj as usize) < ny {
-                                    let st = (ci as usize * ny + cj as usize) * nz;
-                                    acc.iter_mut()
-                                        .zip(&src[st..st + nz])
-                                        .for_each(|(a, &v)| *a += ww * v);
-                                } else {
-                                    acc.iter_mut().for_each(|a| *a += ww * outside);
-                                }
-                            }
-                        }
+        Some(Self {
+            spec: *spec,
+            center_xy,
+            sigma_rad,
+            n_max,
+            tables,
+        })
+    }
+}
+
+impl ColumnKernel for Rotate {
+    fn reach_cells(&self, lo: [usize; 2], hi: [usize; 2]) -> [usize; 2] {
+        // A cell at radius r reads points at most r * phi away (phi = the widest angle), each
+        // through its bilinear neighbours (within 1.5 cells); a cell reading a source at
+        // radius at most R is then at most (R phi + 1.5 v) / (1 - phi) from it.
+        let phi = SPAN_SIGMAS * self.sigma_rad;
+        if phi >= 1.0 {
+            return [usize::MAX; 2];
+        }
+        let v = self.spec.voxel_size_m;
+        let o = self.spec.origin_m;
+        let r_max = [
+            (lo[0], lo[1]),
+            (lo[0], hi[1]),
+            (hi[0], lo[1]),
+            (hi[0], hi[1]),
+        ]
+        .iter()
+        .map(|&(x, y)| {
+            (o[0] + x as f64 * v - self.center_xy[0]).hypot(o[1] + y as f64 * v - self.center_xy[1])
+        })
+        .fold(0.0f64, f64::max);
+        let d = (r_max * phi + 1.5 * v) / (1.0 - phi);
+        let cells = (d / v).ceil() + 1.0;
+        if cells.is_finite() && cells < 1e15 {
+            [cells as usize; 2]
+        } else {
+            [usize::MAX; 2]
+        }
+    }
+
+    fn samples(&self, i: usize, j: usize, out: &mut Vec<([i64; 2], f64)>) {
+        let spec = &self.spec;
+        let voxel = spec.voxel_size_m;
+        let c = spec.center(i, j, 0);
+        let (rx, ry) = (c[0] - self.center_xy[0], c[1] - self.center_xy[1]);
+        // Samples a cell apart along the arc at this radius.
+        let n = samples_per_side(self.sigma_rad * rx.hypot(ry), voxel).min(self.n_max);
+        if n == 0 {
+            out.push(([i as i64, j as i64], 1.0));
+            return;
+        }
+        for &(w, sn, cs) in &self.tables[n] {
+            // Source of the value that the rotation by phi carries here.
+            let sx = self.center_xy[0] + cs * rx + sn * ry;
+            let sy = self.center_xy[1] - sn * rx + cs * ry;
+            let fx = (sx - spec.origin_m[0]) / voxel - 0.5;
+            let fy = (sy - spec.origin_m[1]) / voxel - 0.5;
+            let (x0, y0) = (floor_fast(fx), floor_fast(fy));
+            let (ax, ay) = (fx - x0, fy - y0);
+            for (ci, wx) in [(x0 as i64, 1.0 - ax), (x0 as i64 + 1, ax)] {
+                for (cj, wy) in [(y0 as i64, 1.0 - ay), (y0 as i64 + 1, ay)] {
+                    let ww = w * wx * wy;
+                    if ww != 0.0 {
+                        out.push(([ci, cj], ww));
                     }
                 }
-            });
-        true
+            }
+        }
     }
 }
 
 /// Scratch space reused across blurs, so a replay allocates it once.
 #[derive(Debug, Default)]
 pub struct Blurrer {
-    src: Vec<f64>,
-    dst: Vec<f64>,
-    /// Log-odds blurs read the grid itself and write here, then swap.
-    dst_f32: Vec<f32>,
+    blocks: Vec<u32>,
+    out32: Vec<f32>,
+    src64: Vec<f64>,
+    out64: Vec<f64>,
 }
 
 impl Blurrer {
-    /// A log-odds blur straight from the grid's f32 log-odds into the scratch buffer, which
-    /// then becomes the grid's: the world outside at the prior.
-    fn log_odds_blur(
+    /// A log-odds blur: the kernel applied to the evidence (log-odds above the prior's) in
+    /// f32, the grid's own type (no conversion passes, half the memory traffic of f64).
+    pub(crate) fn log_odds_blur(
         &mut self,
         grid: &mut Grid,
-        kernel: impl FnOnce(&[f32], &mut [f32], f32) -> bool,
-    ) {
-        self.dst_f32.resize(grid.log_odds.len(), 0.0);
-        let outside = grid.prior_log_odds();
-        if kernel(&grid.log_odds, &mut self.dst_f32, outside) {
-            std::mem::swap(&mut grid.log_odds, &mut self.dst_f32);
-        }
+        kernel: &dyn ColumnKernel,
+    ) -> Result<(), GridError> {
+        convolve(
+            &grid.spec,
+            &grid.layout,
+            &grid.evidence,
+            kernel,
+            FLUSH_EVIDENCE,
+            &mut self.blocks,
+            &mut self.out32,
+        );
+        grid.adopt_evidence(&mut self.blocks, &mut self.out32)
     }
 
-    /// Loads the grid's probabilities (f64); returns the probability of the world outside.
-    fn load_probabilities(&mut self, grid: &Grid) -> f64 {
-        self.src.resize(grid.log_odds.len(), 0.0);
-        self.dst.resize(grid.log_odds.len(), 0.0);
-        self.src
+    /// The paper's blur: the kernel applied to the probabilities, in f64 (f32 cannot hold
+    /// 1 - 1e-10), as their offset from the prior's, so that a region at the prior stays
+    /// there exactly; written back as evidence, ln(p) - ln(1 - p) less the prior's log-odds
+    /// (averages of f64 probabilities never leave [min prob, 1 - 2^-53], so the log-odds stay
+    /// within +-37).
+    fn probability_blur(
+        &mut self,
+        grid: &mut Grid,
+        kernel: &dyn ColumnKernel,
+    ) -> Result<(), GridError> {
+        let prior = grid.prior_log_odds();
+        let p0 = sigmoid(f64::from(prior));
+        self.src64.resize(grid.evidence.len(), 0.0);
+        self.src64
             .par_iter_mut()
-            .zip(grid.log_odds.par_iter())
-            .for_each(|(s, &l)| *s = sigmoid(f64::from(l)));
-        grid.prior
-    }
-
-    /// Writes the blurred probabilities back as log-odds: ln(p) - ln(1 - p), finite for p in
-    /// (0, 1); averages of f64 probabilities never leave [min prob, 1 - 2^-53], so the
-    /// log-odds stay within +-37.
-    fn store_probabilities(&self, grid: &mut Grid) {
-        grid.log_odds
+            .zip(grid.evidence.par_iter())
+            .for_each(|(q, &e)| *q = sigmoid(f64::from(prior + e)) - p0);
+        convolve(
+            &grid.spec,
+            &grid.layout,
+            &self.src64,
+            kernel,
+            0.0,
+            &mut self.blocks,
+            &mut self.out64,
+        );
+        self.out32.resize(self.out64.len(), 0.0);
+        self.out32
             .par_iter_mut()
-            .zip(self.dst.par_iter())
-            .for_each(|(l, &v)| {
-                let p = v.clamp(f64::MIN_POSITIVE, 1.0 - f64::EPSILON / 2.0);
-                *l = (p.ln() - (-p).ln_1p()) as f32;
+            .zip(self.out64.par_iter())
+            .for_each(|(e, &q)| {
+                let p = (p0 + q).clamp(f64::MIN_POSITIVE, 1.0 - f64::EPSILON / 2.0);
+                let l = p.ln() - (-p).ln_1p();
+                *e = ((l - f64::from(prior)) as f32).flushed(FLUSH_EVIDENCE);
             });
+        grid.adopt_evidence(&mut self.blocks, &mut self.out32)
+    }
+
+    fn blur(
+        &mut self,
+        grid: &mut Grid,
+        kernel: Option<&dyn ColumnKernel>,
+        mode: BlurMode,
+    ) -> Result<(), GridError> {
+        match kernel {
+            None => Ok(()),
+            Some(k) if mode == BlurMode::Probability => self.probability_blur(grid, k),
+            Some(k) => self.log_odds_blur(grid, k),
+        }
     }
 
     /// Blurs the belief along the unit direction `dir_xy` (odom x, y) with standard
-    /// deviation `sigma_m`.
-    pub fn translate(&mut self, grid: &mut Grid, dir_xy: [f64; 2], sigma_m: f64, mode: BlurMode) {
-        let spec = grid.spec;
-        if mode != BlurMode::Probability {
-            self.log_odds_blur(grid, |src, dst, outside| {
-                kernel::translate(&spec, src, dst, dir_xy, sigma_m, outside)
-            });
-            return;
-        }
-        let outside = self.load_probabilities(grid);
-        if kernel::translate(&spec, &self.src, &mut self.dst, dir_xy, sigma_m, outside) {
-            self.store_probabilities(grid);
-        }
+    /// deviation `sigma_m`; [`GridError::Allocation`] when the blocks it reaches do not fit.
+    pub fn translate(
+        &mut self,
+        grid: &mut Grid,
+        dir_xy: [f64; 2],
+        sigma_m: f64,
+        mode: BlurMode,
+    ) -> Result<(), GridError> {
+        let k = Translate::new(&grid.spec, dir_xy, sigma_m);
+        self.blur(grid, k.as_ref().map(|k| k as &dyn ColumnKernel), mode)
     }
 
     /// Blurs the belief in angle about the vertical axis through `center_xy` with standard
-    /// deviation `sigma_rad`.
-    pub fn rotate(&mut self, grid: &mut Grid, center_xy: [f64; 2], sigma_rad: f64, mode: BlurMode) {
-        let spec = grid.spec;
-        if mode != BlurMode::Probability {
-            self.log_odds_blur(grid, |src, dst, outside| {
-                kernel::rotate(&spec, src, dst, center_xy, sigma_rad, outside)
-            });
-            return;
-        }
-        let outside = self.load_probabilities(grid);
-        if kernel::rotate(
-            &spec,
-            &self.src,
-            &mut self.dst,
-            center_xy,
-            sigma_rad,
-            outside,
-        ) {
-            self.store_probabilities(grid);
-        }
+    /// deviation `sigma_rad`; [`GridError::Allocation`] when the blocks it reaches do not fit.
+    pub fn rotate(
+        &mut self,
+        grid: &mut Grid,
+        center_xy: [f64; 2],
+        sigma_rad: f64,
+        mode: BlurMode,
+    ) -> Result<(), GridError> {
+        let k = Rotate::new(&grid.spec, center_xy, sigma_rad);
+        self.blur(grid, k.as_ref().map(|k| k as &dyn ColumnKernel), mode)
     }
 
-    /// Spreads one frame's evidence (log likelihood ratios per cell, 0 outside the view) over
-    /// the pose uncertainty of that frame: the likelihood ratio of a cell is the expectation
-    /// of the ratio over the pose distribution, so it is the ratio, not its logarithm, that is
-    /// averaged. Heading uncertainty `sigma_rad` rotates about `center_xy` (the robot);
-    /// position uncertainty `sigma_m` spreads isotropically in x and y.
+    /// Spreads one frame's evidence (log likelihood ratios per stored cell, laid out like
+    /// `grid`, 0 outside the view; from [`Grid::frame_evidence`]) over the pose uncertainty of
+    /// that frame: the likelihood ratio of a cell is the expectation of the ratio over the
+    /// pose distribution, so it is the ratio, not its logarithm, that is averaged (as its
+    /// offset from 1, so that cells the frame did not see stay exactly at 1). Heading
+    /// uncertainty `sigma_rad` rotates about `center_xy` (the robot); position uncertainty
+    /// `sigma_m` spreads isotropically in x and y. The grid stores the blocks the spread
+    /// reaches, and `evidence` is laid out like it afterwards.
     pub fn spread_evidence(
         &mut self,
-        spec: &crate::fuse::grid::GridSpec,
-        evidence: &mut [f32],
+        grid: &mut Grid,
+        evidence: &mut Vec<f32>,
         center_xy: [f64; 2],
         sigma_rad: f64,
         sigma_m: f64,
-    ) {
-        self.src.resize(evidence.len(), 0.0);
-        self.dst.resize(evidence.len(), 0.0);
-        self.src
+    ) -> Result<(), GridError> {
+        let spec = grid.spec;
+        let rotate = Rotate::new(&spec, center_xy, sigma_rad);
+        let along_x = Translate::new(&spec, [1.0, 0.0], sigma_m);
+        let along_y = Translate::new(&spec, [0.0, 1.0], sigma_m);
+        let passes: Vec<&dyn ColumnKernel> = [
+            rotate.as_ref().map(|k| k as &dyn ColumnKernel),
+            along_x.as_ref().map(|k| k as &dyn ColumnKernel),
+            along_y.as_ref().map(|k| k as &dyn ColumnKernel),
+        ]
+        .into_iter()
+        .flatten()
+        .collect();
+        if passes.is_empty() {
+            return Ok(());
+        }
+        self.src64.resize(evidence.len(), 0.0);
+        self.src64
             .par_iter_mut()
             .zip(evidence.par_iter())
-            .for_each(|(s, &e)| *s = f64::from(e).exp());
-        let mut changed = false;
-        for pass in 0..3 {
-            let done = match pass {
-                0 => kernel::rotate(spec, &self.src, &mut self.dst, center_xy, sigma_rad, 1.0),
-                1 => kernel::translate(spec, &self.src, &mut self.dst, [1.0, 0.0], sigma_m, 1.0),
-                _ => kernel::translate(spec, &self.src, &mut self.dst, [0.0, 1.0], sigma_m, 1.0),
-            };
-            if done {
-                std::mem::swap(&mut self.src, &mut self.dst);
-                changed = true;
-            }
+            .for_each(|(r, &e)| *r = f64::from(e).exp_m1());
+        for k in passes {
+            convolve(
+                &grid.spec,
+                &grid.layout,
+                &self.src64,
+                k,
+                f64::from(FLUSH_EVIDENCE),
+                &mut self.blocks,
+                &mut self.out64,
+            );
+            grid.adopt_layout(&mut self.blocks, &mut self.out64)?;
+            std::mem::swap(&mut self.src64, &mut self.out64);
         }
-        if changed {
-            evidence
-                .par_iter_mut()
-                .zip(self.src.par_iter())
-                .for_each(|(e, &r)| *e = r.ln() as f32);
-        }
+        evidence.clear();
+        evidence.extend(
+            self.src64
+                .iter()
+                .map(|&r| (r.ln_1p() as f32).flushed(FLUSH_EVIDENCE)),
+        );
+        Ok(())
     }
 }
 
@@ -463,17 +501,13 @@ mod tests {
         Grid::new(spec, 0.01).unwrap()
     }
 
-    /// Mean and standard deviation along a unit direction of the excess log-odds over the
-    /// background (the value of a far corner cell, which no blur here reaches).
+    /// Mean and standard deviation along a unit direction of the evidence (log-odds over
+    /// the prior's).
     fn moments(g: &Grid, dir: [f64; 2], origin: [f64; 2]) -> (f64, f64, f64, f64) {
-        let base = f64::from(g.log_odds[g.spec.index(0, 0, 1)]);
-        // Log-odds are blurred in f32: the weights sum to 1 only within f32 rounding, which
-        // moves a region at the prior by a few 1e-7; the excess is taken over that.
-        assert!(
-            (base - f64::from(g.prior_log_odds())).abs() < 2e-6,
-            "background {base} vs prior {}",
-            g.prior_log_odds()
-        );
+        // The blur averages the offset from the prior: a far corner cell, which no blur here
+        // reaches, stays exactly at the prior (the weights' f32 rounding multiplies 0).
+        assert_eq!(g.evidence_at(g.spec.index(0, 0, 1)).to_bits(), 0);
+        assert_eq!(g.log_odds_at(g.spec.index(0, 0, 1)), g.prior_log_odds());
         let (mut w, mut m1, mut m2, mut perp2) = (0.0, 0.0, 0.0, 0.0);
         for idx in 0..g.spec.cells() {
             let [i, j, k] = g.spec.ijk(idx);
@@ -481,7 +515,7 @@ mod tests {
                 continue;
             }
             let c = g.spec.center(i, j, k);
-            let e = f64::from(g.log_odds[idx]) - base;
+            let e = f64::from(g.evidence_at(idx));
             let (x, y) = (c[0] - origin[0], c[1] - origin[1]);
             let s = x * dir[0] + y * dir[1];
             let t = -x * dir[1] + y * dir[0];
@@ -499,10 +533,10 @@ mod tests {
         for dir in [[1.0, 0.0], [0.6, 0.8], [-0.28, 0.96]] {
             let mut g = grid();
             let hot = g.spec.index(50, 50, 1);
-            g.log_odds[hot] += 10.0;
+            g.set_cell(hot, 10.0, 0).unwrap();
             let c = g.spec.center(50, 50, 1);
             let mut b = Blurrer::default();
-            b.translate(&mut g, dir, 0.2, BlurMode::LogOdds);
+            b.translate(&mut g, dir, 0.2, BlurMode::LogOdds).unwrap();
             let (mass, mean, sd, perp) = moments(&g, dir, [c[0], c[1]]);
             // Log-odds blurring conserves the evidence, adds no systematic motion, and spreads
             // it by sigma along the heading; the bilinear step on the minor axis adds at most
@@ -519,10 +553,11 @@ mod tests {
         let mut g = grid();
         // Hot cell 1 m east of the centre of rotation.
         let hot = g.spec.index(75, 50, 1);
-        g.log_odds[hot] += 10.0;
+        g.set_cell(hot, 10.0, 0).unwrap();
         let centre = g.spec.center(50, 50, 1);
         let mut b = Blurrer::default();
-        b.rotate(&mut g, [centre[0], centre[1]], 0.1, BlurMode::LogOdds);
+        b.rotate(&mut g, [centre[0], centre[1]], 0.1, BlurMode::LogOdds)
+            .unwrap();
         // Along the arc (tangent = +y at this point) sigma ~ r * 0.1 = 0.1 m.
         let cell = g.spec.center(75, 50, 1);
         let (mass, mean, sd, _) = moments(&g, [0.0, 1.0], [cell[0], cell[1]]);
@@ -535,15 +570,19 @@ mod tests {
     #[test]
     fn zero_sigma_is_the_identity_bit_for_bit() {
         let mut g = grid();
-        for (i, l) in g.log_odds.iter_mut().enumerate() {
-            *l = (i as f32 * 0.37).sin() * 20.0;
+        for i in 0..g.spec.cells() {
+            g.set_cell(i, (i as f32 * 0.37).sin() * 20.0, 1).unwrap();
         }
-        let before = g.log_odds.clone();
+        let before = g.clone();
         let mut b = Blurrer::default();
-        b.translate(&mut g, [1.0, 0.0], 0.0, BlurMode::Probability);
-        b.rotate(&mut g, [1.0, 1.0], 0.0, BlurMode::Probability);
-        b.translate(&mut g, [1.0, 0.0], 0.0, BlurMode::LogOdds);
-        assert_eq!(g.log_odds, before);
+        b.translate(&mut g, [1.0, 0.0], 0.0, BlurMode::Probability)
+            .unwrap();
+        b.rotate(&mut g, [1.0, 1.0], 0.0, BlurMode::Probability)
+            .unwrap();
+        b.translate(&mut g, [1.0, 0.0], 0.0, BlurMode::LogOdds)
+            .unwrap();
+        assert_eq!(g.evidence, before.evidence);
+        assert_eq!(g.sha256_hex(), before.sha256_hex());
     }
 
     /// The paper's probability averaging caps evidence: log-odds 50 beside prior cells falls
@@ -552,11 +591,13 @@ mod tests {
     fn probability_blur_caps_evidence() {
         let mut g = grid();
         let hot = g.spec.index(50, 50, 1);
-        g.log_odds[hot] = 50.0;
+        g.set_cell(hot, 50.0 - g.prior_log_odds(), 0).unwrap();
         let mut gl = g.clone();
         let mut b = Blurrer::default();
-        b.translate(&mut g, [1.0, 0.0], 0.04, BlurMode::Probability);
-        b.translate(&mut gl, [1.0, 0.0], 0.04, BlurMode::LogOdds);
+        b.translate(&mut g, [1.0, 0.0], 0.04, BlurMode::Probability)
+            .unwrap();
+        b.translate(&mut gl, [1.0, 0.0], 0.04, BlurMode::LogOdds)
+            .unwrap();
         // Centre weight of a sigma = 1 cell kernel sampled at whole cells out to 4 sigma:
         // 1 / (1 + 2 (e^-0.5 + e^-2 + e^-4.5 + e^-8)) = 0.398943.
         let w0 = gaussian_weights(4, 0.04, 0.04)[4];
@@ -564,13 +605,16 @@ mod tests {
         let p = w0 + (1.0 - w0) * 0.01;
         let expect = logit(p);
         assert!(
-            (f64::from(g.log_odds[hot]) - expect).abs() < 1e-4,
+            (f64::from(g.log_odds_at(hot)) - expect).abs() < 1e-4,
             "{} vs {expect}",
-            g.log_odds[hot]
+            g.log_odds_at(hot)
         );
-        assert!(g.log_odds[hot] < 1.0);
+        assert!(g.log_odds_at(hot) < 1.0);
         let expect_l = w0 * 50.0 + (1.0 - w0) * f64::from(gl.prior_log_odds());
-        assert!((f64::from(gl.log_odds[hot]) - expect_l).abs() < 1e-3);
+        assert!((f64::from(gl.log_odds_at(hot)) - expect_l).abs() < 1e-3);
+        // Four cells beyond the kernel's reach, both are exactly at the prior.
+        let far = g.spec.index(56, 50, 1);
+        assert_eq!((g.evidence_at(far), gl.evidence_at(far)), (0.0, 0.0));
     }
 
     #[test]
@@ -594,12 +638,14 @@ mod tests {
         let run = |threads| {
             crate::types::testing::with_threads(threads, || {
                 let mut g = grid();
-                for (i, l) in g.log_odds.iter_mut().enumerate() {
-                    *l = (i as f32 * 0.011).sin() * 5.0;
+                for i in 0..g.spec.cells() {
+                    g.set_cell(i, (i as f32 * 0.011).sin() * 5.0, 0).unwrap();
                 }
                 let mut b = Blurrer::default();
-                b.translate(&mut g, [0.3, 0.7], 0.1, BlurMode::Probability);
-                b.rotate(&mut g, [2.0, 1.5], 0.05, BlurMode::LogOdds);
+                b.translate(&mut g, [0.3, 0.7], 0.1, BlurMode::Probability)
+                    .unwrap();
+                b.rotate(&mut g, [2.0, 1.5], 0.05, BlurMode::LogOdds)
+                    .unwrap();
                 g.sha256_hex()
             })
         };

@@ -11,13 +11,14 @@
 //! number of frames. The defaults were chosen by measurement on the shipped tours (see
 //! docs/fuser.md).
 //!
-//! Invariants: pure function of the grid; components are found in index order, so the output
-//! order is deterministic. No I/O.
+//! Invariants: pure function of the grid's cells (not of which blocks it stores);
+//! components are found in flat index order, so the output order is deterministic. No I/O.
 
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::fuse::grid::{Grid, sigmoid};
+use crate::fuse::grid::blocks::{BLOCK, BLOCK_CELLS, cell_offset};
+use crate::fuse::grid::{Grid, for_each_cell, sigmoid};
 
 /// The rule that turns the belief into objects (see the module doc): hysteresis on evidence
 /// relative to the grid's peak, among cells seen often enough.
@@ -113,82 +114,122 @@ pub fn find_objects(grid: &Grid, params: &ObjectParams) -> Vec<Object> {
         .collect()
 }
 
-/// The highest evidence (log-odds above the prior) of a cell seen by at least `min_views`
-/// frames; 0 when none is above the prior.
-fn peak_evidence(grid: &Grid, min_views: u16) -> f32 {
-    let prior = grid.prior_log_odds();
-    // Eight running maxima over zipped slices (log-odds are never NaN, and a maximum does
-    // not depend on the order it is taken in), so the compiler can vectorise the pass: it
-    // runs over every cell once per frame during pose refinement.
-    let lane_max = |acc: &mut f32, v: u16, l: f32| {
-        let e = if v >= min_views { l - prior } else { 0.0 };
-        if e > *acc {
-            *acc = e;
-        }
+/// Per stored block (in [`Grid::par_blocks`] order), the highest evidence (log-odds above
+/// the prior) of a cell seen by at least `min_views` frames, or 0 when none is above the
+/// prior; their maximum is the grid's peak, and a block whose own is below the grow level
+/// holds no candidate.
+fn block_peaks(grid: &Grid, min_views: u16) -> Vec<f32> {
+    // Eight running maxima per block over zipped slices (evidence is never NaN, and a maximum
+    // does not depend on the order it is taken in), so the compiler can vectorise the pass:
+    // it runs over every stored cell once per frame during pose refinement. Cells outside the
+    // grid (a block's pads) and unstored ones hold 0 and no view: they cannot raise it.
+    grid.par_blocks()
+        .map(|b| {
+            let mut lanes = [0.0f32; 8];
+            for (v8, e8) in b.views.chunks_exact(8).zip(b.evidence.chunks_exact(8)) {
+                for k in 0..8 {
+                    let e = if v8[k] >= min_views { e8[k] } else { 0.0 };
+                    if e > lanes[k] {
+                        lanes[k] = e;
+                    }
+                }
+            }
+            lanes.into_iter().fold(0.0f32, f32::max)
+        })
+        .collect()
+}
+
+/// The labelling state of the stored blocks that hold candidate cells (at least the grow
+/// level): one state block per such block, found through its slot.
+struct States {
+    /// State block of each slot, [`NO_STATE`] when it holds no candidate.
+    of_slot: Vec<u32>,
+    blocks: Vec<[u8; BLOCK_CELLS]>,
+}
+
+const NO_STATE: u32 = u32::MAX;
+
+impl States {
+    /// The state of cell (i, j, k), None when its block holds no candidate.
+    fn at(&mut self, grid: &Grid, i: usize, j: usize, k: usize) -> Option<&mut u8> {
+        let s = self.of_slot[grid.slot_at(i, j, k)];
+        (s != NO_STATE).then(|| &mut self.blocks[s as usize][cell_offset(i, j, k)])
+    }
+}
+
+/// A stored block's candidate cells: its slot, first cell, and each candidate's place in the
+/// block and whether it is a seed.
+type MarkedBlock = (usize, [usize; 3], Vec<(u16, bool)>);
+
+/// Marks the candidate cells (seen by `min_views`, evidence at least `grow_e`) [`GROW`];
+/// returns their states and the seeds (evidence at least `seed_e`), flat indices ascending.
+/// `peaks` are [`block_peaks`]: blocks below `grow_e` are not visited.
+fn mark(
+    grid: &Grid,
+    peaks: &[f32],
+    min_views: u16,
+    grow_e: f32,
+    seed_e: f32,
+) -> (States, Vec<usize>) {
+    let marked: Vec<MarkedBlock> = grid
+        .par_blocks()
+        .zip(peaks.par_iter())
+        .filter(|&(_, &peak)| peak >= grow_e)
+        .filter_map(|(b, _)| {
+            let mut cells = Vec::new();
+            for_each_cell(&b, |o, _| {
+                let (v, e) = (b.views[o], b.evidence[o]);
+                if v >= min_views && e >= grow_e {
+                    cells.push((o as u16, e >= seed_e));
+                }
+            });
+            (!cells.is_empty()).then_some((b.slot, b.first_cell, cells))
+        })
+        .collect();
+    let mut states = States {
+        of_slot: vec![NO_STATE; grid.slots()],
+        blocks: Vec::with_capacity(marked.len()),
     };
-    let mut lanes = [0.0f32; 8];
-    let (views8, logs8) = (grid.views.chunks_exact(8), grid.log_odds.chunks_exact(8));
-    let (views_rest, logs_rest) = (views8.remainder(), logs8.remainder());
-    for (v8, l8) in views8.zip(logs8) {
-        for k in 0..8 {
-            lane_max(&mut lanes[k], v8[k], l8[k]);
+    let mut seeds = Vec::new();
+    for (slot, first, cells) in marked {
+        states.of_slot[slot] = states.blocks.len() as u32;
+        let mut st = [NONE; BLOCK_CELLS];
+        for (o, seed) in cells {
+            let o = usize::from(o);
+            st[o] = GROW;
+            if seed {
+                let [a, b, c] = [o / (BLOCK * BLOCK), (o / BLOCK) % BLOCK, o % BLOCK];
+                seeds.push(grid.spec.index(first[0] + a, first[1] + b, first[2] + c));
+            }
         }
+        states.blocks.push(st);
     }
-    let mut max_e = 0.0f32;
-    for (&v, &l) in views_rest.iter().zip(logs_rest) {
-        lane_max(&mut max_e, v, l);
-    }
-    for lane in lanes {
-        if lane > max_e {
-            max_e = lane;
-        }
-    }
-    max_e
+    seeds.sort_unstable();
+    (states, seeds)
 }
 
 /// Like [`find_objects`], with each object's member cells (flat indices, ascending).
 pub fn find_objects_with_cells(grid: &Grid, params: &ObjectParams) -> Vec<(Object, Vec<usize>)> {
     let spec = grid.spec;
-    let prior = grid.prior_log_odds();
-    let n = spec.cells();
-    let mut state = vec![NONE; n];
-    let mut seeds = Vec::new();
-    let max_e = peak_evidence(grid, params.min_views);
+    let peaks = block_peaks(grid, params.min_views);
+    let max_e = peaks.iter().copied().fold(0.0f32, f32::max);
     if max_e <= 0.0 {
         return Vec::new();
     }
     let (seed_e, grow_e) = (params.seed_fraction * max_e, params.grow_fraction * max_e);
-    // Marked in parallel chunks, the seeds gathered in index order: the same as one pass.
-    const CHUNK: usize = 1 << 16;
-    let chunk_seeds: Vec<Vec<usize>> = state
-        .par_chunks_mut(CHUNK)
-        .zip(grid.views.par_chunks(CHUNK))
-        .zip(grid.log_odds.par_chunks(CHUNK))
-        .enumerate()
-        .map(|(c, ((st, vs), ls))| {
-            let mut local = Vec::new();
-            for (k, ((st, &v), &l)) in st.iter_mut().zip(vs).zip(ls).enumerate() {
-                let e = l - prior;
-                if v >= params.min_views && e >= grow_e {
-                    *st = GROW;
-                    if e >= seed_e {
-                        local.push(c * CHUNK + k);
-                    }
-                }
-            }
-            local
-        })
-        .collect();
-    seeds.extend(chunk_seeds.into_iter().flatten());
+    // Seeds in flat index order: components are found in index order, whichever blocks are
+    // stored.
+    let (mut states, seeds) = mark(grid, &peaks, params.min_views, grow_e, seed_e);
     let [nx, ny, nz] = spec.dims;
     let mut objects = Vec::new();
     let mut stack = Vec::new();
     let mut members = Vec::new();
     for &seed in &seeds {
-        if state[seed] != GROW {
-            continue;
+        let [i, j, k] = spec.ijk(seed);
+        match states.at(grid, i, j, k) {
+            Some(st) if *st == GROW => *st = DONE,
+            _ => continue,
         }
-        state[seed] = DONE;
         stack.push(seed);
         members.clear();
         while let Some(idx) = stack.pop() {
@@ -207,10 +248,12 @@ pub fn find_objects_with_cells(grid: &Grid, params: &ObjectParams) -> Vec<(Objec
                         {
                             continue;
                         }
-                        let nb = spec.index(a as usize, b as usize, c as usize);
-                        if state[nb] == GROW {
-                            state[nb] = DONE;
-                            stack.push(nb);
+                        let (a, b, c) = (a as usize, b as usize, c as usize);
+                        if let Some(st) = states.at(grid, a, b, c)
+                            && *st == GROW
+                        {
+                            *st = DONE;
+                            stack.push(spec.index(a, b, c));
                         }
                     }
                 }
@@ -303,7 +346,7 @@ fn summarize(grid: &Grid, members: &[usize]) -> Object {
     for &idx in members {
         let ijk = spec.ijk(idx);
         let centre = spec.center(ijk[0], ijk[1], ijk[2]);
-        let l = f64::from(grid.log_odds[idx]);
+        let l = f64::from(grid.log_odds_at(idx));
         let p = sigmoid(l);
         peak_l = peak_l.max(l);
         w += p;
@@ -367,21 +410,45 @@ mod tests {
     use super::*;
     use crate::fuse::grid::GridSpec;
 
-    fn grid_with(blobs: &[([usize; 3], [usize; 3], f32, u16)]) -> Grid {
+    type Blob = ([usize; 3], [usize; 3], f32, u16);
+
+    fn grid_with(blobs: &[Blob]) -> Grid {
+        grid_stored(blobs, crate::fuse::grid::GridStorage::Dense)
+    }
+
+    fn grid_stored(blobs: &[Blob], storage: crate::fuse::grid::GridStorage) -> Grid {
         let spec = GridSpec::from_bounds([0.0; 3], [1.0, 1.0, 1.0], 0.05).unwrap();
-        let mut g = Grid::new(spec, 0.01).unwrap();
+        let mut g = Grid::with_storage(spec, 0.01, storage, Default::default()).unwrap();
         for &(lo, hi, e, views) in blobs {
             for i in lo[0]..hi[0] {
                 for j in lo[1]..hi[1] {
                     for k in lo[2]..hi[2] {
-                        let idx = spec.index(i, j, k);
-                        g.log_odds[idx] += e;
-                        g.views[idx] = views;
+                        g.set_cell(spec.index(i, j, k), e, views).unwrap();
                     }
                 }
             }
         }
         g
+    }
+
+    /// A sparse grid stores only the blocks of the blobs (one straddles blocks, one touches
+    /// the grid's far faces, which cut its blocks): the same objects, cells and numbers.
+    #[test]
+    fn sparse_and_dense_grids_give_the_same_objects() {
+        use crate::fuse::grid::GridStorage;
+        let blobs = [
+            ([4, 8, 0], [10, 10, 12], 20.0, 6),
+            ([4, 4, 4], [10, 8, 6], 20.0, 6),
+            ([5, 5, 0], [7, 7, 3], 19.0, 6),
+            ([15, 16, 17], [20, 20, 20], 18.0, 5),
+        ];
+        let dense = grid_stored(&blobs, GridStorage::Dense);
+        let sparse = grid_stored(&blobs, GridStorage::Sparse);
+        assert!(sparse.stored_cells() < dense.stored_cells() / 2);
+        let params = ObjectParams::default();
+        let a = find_objects_with_cells(&dense, &params);
+        assert_eq!(a.len(), 2);
+        assert_eq!(a, find_objects_with_cells(&sparse, &params));
     }
 
     #[test]

@@ -65,9 +65,9 @@ impl NpyElem for i64 {
     }
 }
 
-/// Encodes `data` (C order) with `shape` as `.npy` bytes.
-pub fn encode<T: NpyElem>(shape: &[usize], data: &[T]) -> Vec<u8> {
-    debug_assert_eq!(shape.iter().product::<usize>(), data.len());
+/// The `.npy` header (magic, version, length and the padded dict) of an array of `T` with
+/// `shape`, C order.
+pub fn header<T: NpyElem>(shape: &[usize]) -> Vec<u8> {
     let shape_s = match shape {
         [n] => format!("({n},)"),
         _ => format!(
@@ -87,14 +87,56 @@ pub fn encode<T: NpyElem>(shape: &[usize], data: &[T]) -> Vec<u8> {
     let total = 10 + header.len() + 1;
     header.push_str(&" ".repeat((64 - total % 64) % 64));
     header.push('\n');
-    let mut out = Vec::with_capacity(10 + header.len() + data.len() * 4);
+    let mut out = Vec::with_capacity(10 + header.len());
     out.extend_from_slice(b"\x93NUMPY\x01\x00");
     out.extend_from_slice(&(header.len() as u16).to_le_bytes());
     out.extend_from_slice(header.as_bytes());
+    out
+}
+
+/// Encodes `data` (C order) with `shape` as `.npy` bytes.
+pub fn encode<T: NpyElem>(shape: &[usize], data: &[T]) -> Vec<u8> {
+    debug_assert_eq!(shape.iter().product::<usize>(), data.len());
+    let mut out = header::<T>(shape);
+    out.reserve(data.len() * 8);
     for &v in data {
         v.put(&mut out);
     }
     out
+}
+
+/// Writes an array of `shape` (C order) to `path` as `.npy`, atomically, from `parts`: its
+/// values in order, a part at a time (e.g. one x-slab each), so that it is never whole in
+/// memory. The parts must hold `shape`'s product of values in all.
+pub fn write_parts<T: NpyElem>(
+    path: &Path,
+    shape: &[usize],
+    parts: impl Iterator<Item = Vec<T>>,
+) -> Result<(), NpyError> {
+    let io = |source| NpyError::Io {
+        path: path.display().to_string(),
+        source,
+    };
+    let want: usize = shape.iter().product();
+    crate::io::output::write_atomic_with(path, |w| {
+        w.write_all(&header::<T>(shape))?;
+        let (mut n, mut bytes) = (0, Vec::new());
+        for part in parts {
+            n += part.len();
+            bytes.clear();
+            for v in part {
+                v.put(&mut bytes);
+            }
+            w.write_all(&bytes)?;
+        }
+        if n != want {
+            return Err(std::io::Error::other(format!(
+                "{n} values for a shape of {want}"
+            )));
+        }
+        Ok(())
+    })
+    .map_err(io)
 }
 
 /// Writes `data` (C order) with `shape` to `path` as `.npy`, atomically: through a
@@ -169,6 +211,20 @@ mod tests {
         let (shape, data) = read_f32(&p).unwrap();
         assert_eq!(shape, vec![2, 3]);
         assert_eq!(data[5], 6.0);
+    }
+
+    #[test]
+    fn an_array_written_in_parts_is_the_array_written_whole() {
+        let dir = tempfile::tempdir().unwrap();
+        let (a, b) = (dir.path().join("a.npy"), dir.path().join("b.npy"));
+        let data: Vec<f32> = (0..24).map(|i| i as f32 * 0.5).collect();
+        write(&a, &[2, 3, 4], &data).unwrap();
+        write_parts(&b, &[2, 3, 4], data.chunks(12).map(<[f32]>::to_vec)).unwrap();
+        assert_eq!(std::fs::read(&a).unwrap(), std::fs::read(&b).unwrap());
+        // Too few values: an error, and no file.
+        let c = dir.path().join("c.npy");
+        assert!(write_parts(&c, &[2, 3, 4], data.chunks(12).take(1).map(<[f32]>::to_vec)).is_err());
+        assert!(!c.exists() && !crate::io::output::partial_path(&c).exists());
     }
 
     #[test]

@@ -16,10 +16,23 @@ pub fn partial_path(path: &Path) -> PathBuf {
 
 /// Writes `bytes` to `path` through a `.partial` file and a rename.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    write_atomic_with(path, |w| w.write_all(bytes))
+}
+
+/// Writes what `fill` writes to `path` through a buffered `.partial` file and a rename, for
+/// outputs made piece by piece (never whole in memory); on any error the partial file is
+/// removed.
+pub fn write_atomic_with(
+    path: &Path,
+    fill: impl FnOnce(&mut dyn Write) -> std::io::Result<()>,
+) -> std::io::Result<()> {
     let partial = partial_path(path);
     let result = (|| {
-        let mut f = std::fs::File::create(&partial)?;
-        f.write_all(bytes)?;
+        let mut w = std::io::BufWriter::with_capacity(1 << 20, std::fs::File::create(&partial)?);
+        fill(&mut w)?;
+        let f = w
+            .into_inner()
+            .map_err(std::io::IntoInnerError::into_error)?;
         f.sync_all()?;
         drop(f);
         std::fs::rename(&partial, path)

@@ -351,14 +351,30 @@ pub fn match_objects(
 /// IoU of the cells `estimated` (flat indices) against the cells whose centres lie inside a
 /// true box.
 pub fn voxel_iou(spec: &GridSpec, estimated: &[usize], truth: &[TrueObject]) -> f64 {
+    // Only the cells of the boxes' axis-aligned bounds can have their centre inside one: a
+    // building-sized grid has billions of cells, an object a few thousand.
     let mut truth_cells = Vec::new();
-    for idx in 0..spec.cells() {
-        let [i, j, k] = spec.ijk(idx);
-        let c = spec.center(i, j, k);
-        if truth.iter().any(|t| t.contains(c)) {
-            truth_cells.push(idx);
+    for t in truth {
+        let (lo, hi) = t.aabb_m();
+        let range = |a: usize| {
+            let to_cell = |x: f64| (x - spec.origin_m[a]) / spec.voxel_size_m - 0.5;
+            let n = spec.dims[a] as f64;
+            let first = (to_cell(lo[a]).floor() - 1.0).clamp(0.0, n) as usize;
+            let end = (to_cell(hi[a]).ceil() + 2.0).clamp(0.0, n) as usize;
+            first..end
+        };
+        for i in range(0) {
+            for j in range(1) {
+                for k in range(2) {
+                    if t.contains(spec.center(i, j, k)) {
+                        truth_cells.push(spec.index(i, j, k));
+                    }
+                }
+            }
         }
     }
+    truth_cells.sort_unstable();
+    truth_cells.dedup();
     let inter = estimated
         .iter()
         .filter(|i| truth_cells.binary_search(i).is_ok())
@@ -577,6 +593,9 @@ mod tests {
                 origin_m: [0.0; 3],
                 prior: 0.01,
                 sha256: String::new(),
+                storage: None,
+                stored_cells: 0,
+                export: None,
             },
             objects: Vec::new(),
             object_cells: Vec::new(),

@@ -2,13 +2,15 @@
 //!
 //! Invariants: everything but `timing_ms` is a pure function of the session, model and
 //! options (so two replays' reports differ only in timing); `grid.sha256` hashes the grid's
-//! log-odds bytes; `origin_m` is the min corner of cell (0, 0, 0).
+//! contents ([`crate::fuse::grid::Grid::sha256_hex`]), whether it is stored dense or sparse;
+//! `origin_m` is the min corner of cell (0, 0, 0).
 
 use std::collections::BTreeMap;
 use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
+use crate::fuse::grid::{GridStorage, Region};
 use crate::fuse::objects::Object;
 use crate::fuse::replay::{FrameSummary, FuseOptions, Outcome, RefinementCheck};
 
@@ -28,8 +30,48 @@ pub struct GridReport {
     pub origin_m: [f64; 3],
     /// Prior probability of every cell, strictly inside (0, 1): where each cell's belief starts.
     pub prior: f64,
-    /// SHA-256 of the log-odds as little-endian f32 in C order.
+    /// SHA-256 of the grid's contents: for each 8 x 8 x 8 block (ascending block index) with
+    /// a non-zero evidence or view, the block index (u64), its evidence (log-odds above the
+    /// prior's, f32) and views (u16), little-endian (`Grid::sha256_hex`). Equal for a dense
+    /// and a sparse grid holding the same cells. (Before 2026-12-03, the log-odds in C order.)
     pub sha256: String,
+    /// How the grid was stored: `dense` (every block) or `sparse` (the blocks the views and
+    /// the blur reached); absent from older reports (dense).
+    #[serde(default)]
+    pub storage: Option<GridStorage>,
+    /// Cells in stored blocks (8 x 8 x 8 each, counted whole).
+    #[serde(default)]
+    pub stored_cells: u64,
+    /// The cells `fuse --grid` writes: the box of the stored blocks (the whole grid when
+    /// dense), and the min corner of its first cell.
+    #[serde(default)]
+    pub export: Option<GridExport>,
+}
+
+/// Where the `.npy` of `fuse --grid` lies in the grid.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct GridExport {
+    /// Cell (i, j, k) of the grid that is the array's [0, 0, 0].
+    pub first_cell: [usize; 3],
+    /// The array's shape: cells along x, y, z (all 0 when nothing is stored).
+    pub dims: [usize; 3],
+    /// Min corner of the array's cell [0, 0, 0] in `odom`, m: `origin_m + voxel_size_m *
+    /// first_cell`.
+    pub origin_m: [f64; 3],
+}
+
+impl GridExport {
+    /// The export of `region` of a grid with min corner `origin_m` and cells of
+    /// `voxel_size_m`.
+    pub fn new(region: &Region, origin_m: [f64; 3], voxel_size_m: f64) -> Self {
+        Self {
+            first_cell: region.first_cell,
+            dims: region.dims,
+            origin_m: std::array::from_fn(|a| {
+                origin_m[a] + voxel_size_m * region.first_cell[a] as f64
+            }),
+        }
+    }
 }
 
 /// The fuse report (`objloc fuse --report`); schema `schemas/report.schema.json`.
@@ -113,6 +155,13 @@ impl Report {
                 origin_m: g.spec.origin_m,
                 prior: g.prior,
                 sha256: g.sha256_hex(),
+                storage: Some(g.storage()),
+                stored_cells: g.stored_cells() as u64,
+                export: Some(GridExport::new(
+                    &g.occupied_region(),
+                    g.spec.origin_m,
+                    g.spec.voxel_size_m,
+                )),
             },
             objects: outcome.objects.clone(),
             object_cells: outcome.object_cells.clone(),

@@ -10,7 +10,7 @@ use nalgebra::Point3;
 use rayon::prelude::*;
 use sha2::{Digest, Sha256};
 
-use crate::fuse::grid::{Grid, sigmoid};
+use crate::fuse::grid::{BlockCells, Grid, Region, for_each_cell, sigmoid};
 use crate::fuse::objects::Object;
 use crate::fuse::refine::Verdict;
 use crate::fuse::replay::SessionData;
@@ -34,20 +34,23 @@ pub fn verdict_rgb(v: Verdict) -> [u8; 3] {
     }
 }
 
-/// Whole-grid numbers and the cells worth showing, in one pass over the grid.
+/// Whole-grid numbers and the cells worth showing, in one pass over the stored blocks.
 #[derive(Debug, Clone, PartialEq)]
 pub struct GridSummary {
-    /// Highest posterior of any cell, in [0, 1] (0 for a grid without cells).
+    /// Highest posterior of any cell, in [0, 1].
     pub max_posterior: f64,
     /// Mean binary entropy of a cell, bits.
     pub mean_entropy_bits: f64,
     /// (i, j, k) and posterior of the shown cells, in index order.
     pub cells: Vec<([i32; 3], f32)>,
-    /// Mean posterior along x: ny x nz, row-major as an image with z up (row 0 = top z).
+    /// The cells the projections show: the grid's stored region (the whole grid when dense).
+    pub region: Region,
+    /// Mean posterior along x (over the grid's whole x): the region's ny x nz, row-major as
+    /// an image with z up (row 0 = top z).
     pub along_x: Vec<f32>,
-    /// Mean posterior along y: nx wide, nz high, z up.
+    /// Mean posterior along y (over the grid's whole y): the region's nx wide, nz high, z up.
     pub along_y: Vec<f32>,
-    /// Mean posterior along z: nx wide, ny high, y up.
+    /// Mean posterior along z (over the grid's whole z): the region's nx wide, ny high, y up.
     pub along_z: Vec<f32>,
 }
 
@@ -115,66 +118,82 @@ impl PosteriorTable {
 }
 
 /// The [`GridSummary`] of `grid`; the cells shown have a posterior above `min_posterior` and were
-/// seen by at least `min_views` frames.
+/// seen by at least `min_views` frames. Cells outside the stored blocks are at the prior and
+/// count as such.
 pub fn summarize_grid(grid: &Grid, min_posterior: f32, min_views: u16) -> GridSummary {
-    let [nx, ny, nz] = grid.spec.dims;
-    // Slabs of x in fixed groups, summarised in parallel and combined in slab order: the
-    // grouping does not depend on the thread count, so neither do the sums.
-    let starts: Vec<usize> = (0..nx).step_by(SUMMARY_SLABS).collect();
-    let parts: Vec<SlabSummary> = starts
-        .par_iter()
-        .map(|&i0| {
-            summarize_slabs(
-                grid,
-                i0..(i0 + SUMMARY_SLABS).min(nx),
-                min_posterior,
-                min_views,
-            )
-        })
+    let region = grid.occupied_region();
+    let [w, h, d] = region.dims;
+    let table = POSTERIOR_TABLE.get_or_init(PosteriorTable::new);
+    let at_prior = table.get(grid.prior_log_odds());
+    // Slabs of x blocks in block order, summarised in parallel a fixed number at a time and
+    // combined in slab order: the grouping does not depend on the thread count, so neither
+    // do the sums.
+    let blocks: Vec<BlockCells<'_>> = grid.blocks_in_order().collect();
+    let slabs: Vec<&[BlockCells<'_>]> = blocks
+        .chunk_by(|a, b| a.first_cell[0] == b.first_cell[0])
         .collect();
-    let mut along_x = vec![0f64; ny * nz];
-    let mut along_y = vec![0f64; nx * nz];
-    let mut along_z = vec![0f64; nx * ny];
+    let mut along_x = vec![0f64; h * d];
+    let mut along_y = vec![0f64; w * d];
+    let mut along_z = vec![0f64; w * h];
     let mut cells = Vec::new();
-    let mut max_l = f32::NEG_INFINITY;
+    let mut max_e = f32::NEG_INFINITY;
     let mut entropy = 0.0;
-    for (part, &i0) in parts.into_iter().zip(&starts) {
-        max_l = max_l.max(part.max_l);
-        entropy += part.entropy;
-        for (a, v) in along_x.iter_mut().zip(&part.along_x) {
-            *a += v;
+    for batch in slabs.chunks(SUMMARY_SLABS) {
+        let parts: Vec<SlabSummary> = batch
+            .par_iter()
+            .map(|slab| summarize_slab(grid, slab, &region, at_prior, min_posterior, min_views))
+            .collect();
+        for part in parts {
+            max_e = max_e.max(part.max_e);
+            entropy += part.entropy;
+            for (a, v) in along_x.iter_mut().zip(&part.along_x) {
+                *a += v;
+            }
+            let (x0, pw) = (part.first_x - region.first_cell[0], part.width);
+            for row in 0..d {
+                along_y[row * w + x0..row * w + x0 + pw]
+                    .copy_from_slice(&part.along_y[row * pw..(row + 1) * pw]);
+            }
+            for row in 0..h {
+                along_z[row * w + x0..row * w + x0 + pw]
+                    .copy_from_slice(&part.along_z[row * pw..(row + 1) * pw]);
+            }
+            cells.extend(part.cells);
         }
-        let w = part.width;
-        for row in 0..nz {
-            along_y[row * nx + i0..row * nx + i0 + w]
-                .copy_from_slice(&part.along_y[row * w..(row + 1) * w]);
-        }
-        for row in 0..ny {
-            along_z[row * nx + i0..row * nx + i0 + w]
-                .copy_from_slice(&part.along_z[row * w..(row + 1) * w]);
-        }
-        cells.extend(part.cells);
     }
+    cells.sort_unstable_by_key(|c| c.0);
+    if !grid.is_fully_stored() {
+        max_e = max_e.max(0.0);
+    }
+    let [nx, ny, nz] = grid.spec.dims;
     let n = grid.spec.cells().max(1) as f64;
-    let mean = |v: Vec<f64>, d: usize| v.into_iter().map(|s| (s / d as f64) as f32).collect();
+    // The sums hold each stored cell's difference from the prior's value.
+    let mean = |v: Vec<f64>, len: usize| {
+        v.into_iter()
+            .map(|s| ((len as f64 * at_prior.0 + s) / len as f64) as f32)
+            .collect()
+    };
     GridSummary {
-        max_posterior: sigmoid(f64::from(max_l)),
-        mean_entropy_bits: entropy / n,
+        max_posterior: sigmoid(f64::from(grid.prior_log_odds() + max_e)),
+        mean_entropy_bits: (n * at_prior.1 + entropy) / n,
         cells,
+        region,
         along_x: mean(along_x, nx),
         along_y: mean(along_y, ny),
         along_z: mean(along_z, nz),
     }
 }
 
-/// Slabs of x per parallel part of [`summarize_grid`].
+/// Slabs of x blocks per parallel batch of [`summarize_grid`].
 const SUMMARY_SLABS: usize = 8;
 
-/// A [`GridSummary`]'s sums over a few slabs of x: `along_y` and `along_z` only for those
-/// slabs (`width` columns), `along_x` over them.
+/// A [`GridSummary`]'s sums over one slab of x blocks (`width` columns from `first_x`):
+/// `along_y` and `along_z` only for those columns, `along_x` over them; each the cells'
+/// difference from the prior's value.
 struct SlabSummary {
+    first_x: usize,
     width: usize,
-    max_l: f32,
+    max_e: f32,
     entropy: f64,
     along_x: Vec<f64>,
     along_y: Vec<f64>,
@@ -182,47 +201,57 @@ struct SlabSummary {
     cells: Vec<([i32; 3], f32)>,
 }
 
-fn summarize_slabs(
+fn summarize_slab(
     grid: &Grid,
-    slabs: std::ops::Range<usize>,
+    slab: &[BlockCells<'_>],
+    region: &Region,
+    at_prior: (f64, f64),
     min_posterior: f32,
     min_views: u16,
 ) -> SlabSummary {
-    let [_, ny, nz] = grid.spec.dims;
-    let (i0, width) = (slabs.start, slabs.len());
+    let [_, h, d] = region.dims;
+    let first_x = slab.first().map_or(0, |b| b.first_cell[0]);
+    let width = slab.first().map_or(0, |b| b.extent[0]);
     let table = POSTERIOR_TABLE.get_or_init(PosteriorTable::new);
+    let prior = grid.prior_log_odds();
     // A cell can be shown only if its log-odds come near the threshold's: the exact sigmoid
     // decides for those few (the margin covers the rounding of logit and of the f32 cast).
     let near_threshold = (crate::fuse::grid::logit(f64::from(min_posterior)) - 1e-3) as f32;
     let mut s = SlabSummary {
+        first_x,
         width,
-        max_l: f32::NEG_INFINITY,
+        max_e: f32::NEG_INFINITY,
         entropy: 0.0,
-        along_x: vec![0.0; ny * nz],
-        along_y: vec![0.0; width * nz],
-        along_z: vec![0.0; width * ny],
+        along_x: vec![0.0; h * d],
+        along_y: vec![0.0; width * d],
+        along_z: vec![0.0; width * h],
         cells: Vec::new(),
     };
-    for i in slabs {
-        for j in 0..ny {
-            for k in 0..nz {
-                let idx = grid.spec.index(i, j, k);
-                let l = grid.log_odds[idx];
-                s.max_l = s.max_l.max(l);
-                let (p, h) = table.get(l);
-                s.entropy += h;
-                let (rz, ry) = (nz - 1 - k, ny - 1 - j);
-                s.along_x[rz * ny + j] += p;
-                s.along_y[rz * width + i - i0] += p;
-                s.along_z[ry * width + i - i0] += p;
-                if l > near_threshold && grid.views[idx] >= min_views {
-                    let p = sigmoid(f64::from(l)) as f32;
-                    if p > min_posterior {
-                        s.cells.push(([i as i32, j as i32, k as i32], p));
-                    }
+    let [_, j0, k0] = region.first_cell;
+    for b in slab {
+        for_each_cell(b, |o, [a, c, e]| {
+            let (i, j, k) = (
+                b.first_cell[0] + a,
+                b.first_cell[1] + c,
+                b.first_cell[2] + e,
+            );
+            let ev = b.evidence[o];
+            let l = prior + ev;
+            s.max_e = s.max_e.max(ev);
+            let (p, hb) = table.get(l);
+            let p = p - at_prior.0;
+            s.entropy += hb - at_prior.1;
+            let (rz, ry) = (d - 1 - (k - k0), h - 1 - (j - j0));
+            s.along_x[rz * h + j - j0] += p;
+            s.along_y[rz * width + i - first_x] += p;
+            s.along_z[ry * width + i - first_x] += p;
+            if l > near_threshold && b.views[o] >= min_views {
+                let p = sigmoid(f64::from(l)) as f32;
+                if p > min_posterior {
+                    s.cells.push(([i as i32, j as i32, k as i32], p));
                 }
             }
-        }
+        });
     }
     s
 }
@@ -456,10 +485,9 @@ mod tests {
         let hi = logit(0.8) as f32;
         let a = spec.index(1, 0, 1);
         let b = spec.index(0, 0, 0);
-        grid.log_odds[a] = hi;
-        grid.views[a] = 2;
-        grid.log_odds[b] = hi;
-        grid.views[b] = 1;
+        // The prior 0.5 is log-odds 0: evidence and log-odds are the same.
+        grid.set_cell(a, hi, 2).unwrap();
+        grid.set_cell(b, hi, 1).unwrap();
         let s = summarize_grid(&grid, 0.5, 2);
         assert_eq!(s.cells, vec![([1, 0, 1], 0.8)]);
         assert!((s.max_posterior - 0.8).abs() < 1e-6);
@@ -487,37 +515,55 @@ mod tests {
 
     #[test]
     fn the_slabbed_summary_is_the_cell_by_cell_one() {
-        // 19 slabs of x: two full groups of eight and a partial one.
+        use crate::fuse::grid::{Budget, GridStorage};
+        // 19 x 13 x 11 cells: three slabs of x blocks (8, 8 and 3 columns), blocks cut at the
+        // far faces. Dense with every cell set, and sparse with only the cells of x >= 9
+        // set (its region then starts at x = 8).
         let spec = GridSpec {
             origin_m: [0.0; 3],
             voxel_size_m: 1.0,
-            dims: [19, 5, 3],
+            dims: [19, 13, 11],
         };
-        let mut grid = Grid::new(spec, 0.1).unwrap();
-        for idx in 0..spec.cells() {
-            grid.log_odds[idx] = ((idx * 37) % 23) as f32 * 0.5 - 5.0;
-            grid.views[idx] = (idx % 4) as u16;
-        }
-        let s = summarize_grid(&grid, 0.5, 2);
-        let [nx, ny, nz] = spec.dims;
-        let (mut along_z, mut cells, mut h) = (vec![0f64; nx * ny], Vec::new(), 0.0);
-        for idx in 0..spec.cells() {
-            let [i, j, k] = spec.ijk(idx);
-            let p = sigmoid(f64::from(grid.log_odds[idx]));
-            h += binary_entropy_bits(p);
-            along_z[(ny - 1 - j) * nx + i] += p / nz as f64;
-            if p as f32 > 0.5 && grid.views[idx] >= 2 {
-                cells.push(([i as i32, j as i32, k as i32], p as f32));
+        for (storage, from_x) in [(GridStorage::Dense, 0), (GridStorage::Sparse, 9)] {
+            let mut grid = Grid::with_storage(spec, 0.1, storage, Budget::default()).unwrap();
+            for idx in 0..spec.cells() {
+                if spec.ijk(idx)[0] >= from_x {
+                    let e = ((idx * 37) % 23) as f32 * 0.5 - 3.0;
+                    grid.set_cell(idx, e, (idx % 4) as u16).unwrap();
+                }
             }
+            let s = summarize_grid(&grid, 0.5, 2);
+            let r = s.region;
+            assert_eq!(r.first_cell, [from_x / 8 * 8, 0, 0], "{storage:?}");
+            let [nx, ny, nz] = spec.dims;
+            let (w, h) = (r.dims[0], r.dims[1]);
+            let (mut along_z, mut along_x) = (vec![0f64; w * h], vec![0f64; ny * nz]);
+            let (mut cells, mut ent, mut max_p) = (Vec::new(), 0.0, 0.0f64);
+            for idx in 0..spec.cells() {
+                let [i, j, k] = spec.ijk(idx);
+                let p = sigmoid(f64::from(grid.log_odds_at(idx)));
+                ent += binary_entropy_bits(p);
+                max_p = max_p.max(p);
+                along_x[(nz - 1 - k) * ny + j] += p / nx as f64;
+                if i >= r.first_cell[0] {
+                    along_z[(h - 1 - j) * w + i - r.first_cell[0]] += p / nz as f64;
+                }
+                if p as f32 > 0.5 && grid.views_at(idx) >= 2 {
+                    cells.push(([i as i32, j as i32, k as i32], p as f32));
+                }
+            }
+            assert_eq!(s.cells, cells, "{storage:?}");
+            assert!((s.mean_entropy_bits - ent / spec.cells() as f64).abs() < 1e-5);
+            assert!((s.max_posterior - max_p).abs() < 1e-12);
+            let close = |a: &[f32], b: &[f64]| {
+                a.len() == b.len()
+                    && a.iter()
+                        .zip(b)
+                        .all(|(a, b)| (f64::from(*a) - b).abs() < 1e-5)
+            };
+            assert!(close(&s.along_z, &along_z), "{storage:?}");
+            assert!(close(&s.along_x, &along_x), "{storage:?}");
         }
-        assert_eq!(s.cells, cells);
-        assert!((s.mean_entropy_bits - h / spec.cells() as f64).abs() < 1e-5);
-        assert!(
-            s.along_z
-                .iter()
-                .zip(&along_z)
-                .all(|(a, b)| (f64::from(*a) - b).abs() < 1e-5)
-        );
     }
 
     #[test]

@@ -1,6 +1,8 @@
 //! The fuser state: grid, blur scratch and options; takes typed values, returns state.
 
-use crate::fuse::grid::{Grid, GridError, GridSpec, TileEvidence, logit};
+use crate::fuse::grid::{
+    Budget, Grid, GridError, GridSpec, MAX_GRID_BYTES, TileEvidence, logit, max_depth_m,
+};
 use crate::fuse::motion::{BlurMode, Blurrer, Segment};
 use crate::types::geometry::{Camera, Iso3, yaw_of};
 use crate::types::probs::TileProbs;
@@ -24,10 +26,15 @@ pub struct Fuser {
 }
 
 impl Fuser {
-    /// A fuser with a fresh grid at `prior`; [`GridError::Prior`] or [`GridError::Clamp`] when
-    /// `prior` or `options.clamp` is not a valid probability (range).
+    /// A fuser with a fresh grid at `prior`, stored as `options.grid_storage` says;
+    /// [`GridError::Prior`] or [`GridError::Clamp`] when `prior` or `options.clamp` is not a
+    /// valid probability (range), [`GridError::TooLarge`] for a dense grid that does not fit.
     pub fn new(spec: GridSpec, prior: f64, options: FuseOptions) -> Result<Self, GridError> {
-        let mut grid = Grid::new(spec, prior)?;
+        let budget = Budget {
+            max_bytes: MAX_GRID_BYTES,
+            f64_blur: options.blur != BlurMode::LogOdds,
+        };
+        let mut grid = Grid::with_storage(spec, prior, options.grid_storage, budget)?;
         if let Some((lo, hi)) = options.clamp {
             if !(lo > 0.0 && hi < 1.0 && lo < hi) {
                 return Err(GridError::Clamp { lo, hi });
@@ -46,7 +53,8 @@ impl Fuser {
     }
 
     /// Blurs the belief by one command segment; `odom_from_base` is the pose at its start.
-    pub fn blur(&mut self, seg: &Segment, odom_from_base: &Iso3) {
+    /// [`GridError::Allocation`] when a sparse grid cannot store the blocks it reaches.
+    pub fn blur(&mut self, seg: &Segment, odom_from_base: &Iso3) -> Result<(), GridError> {
         let t = seg.duration_s();
         if self.options.blur == BlurMode::Observation {
             // The belief stays; the uncertainty is carried to the next frame's evidence.
@@ -56,7 +64,7 @@ impl Fuser {
             if seg.w_radps != 0.0 {
                 self.heading_var_rad2 += (self.options.sigma_w_radps * t).powi(2);
             }
-            return;
+            return Ok(());
         }
         if seg.v_mps != 0.0 {
             let yaw = yaw_of(odom_from_base);
@@ -65,7 +73,7 @@ impl Fuser {
                 [yaw.cos(), yaw.sin()],
                 self.options.sigma_v_mps * t,
                 self.options.blur,
-            );
+            )?;
         }
         if seg.w_radps != 0.0 {
             let c = odom_from_base.translation.vector;
@@ -74,8 +82,9 @@ impl Fuser {
                 [c.x, c.y],
                 self.options.sigma_w_radps * t,
                 self.options.blur,
-            );
+            )?;
         }
+        Ok(())
     }
 
     /// Drops the pose uncertainty accumulated for [`BlurMode::Observation`]: the next frame's
@@ -85,15 +94,17 @@ impl Fuser {
         self.position_var_m2 = 0.0;
     }
 
-    /// Integrates one frame's tile probabilities seen from `odom_from_camera`.
+    /// Integrates one frame's tile probabilities seen from `odom_from_camera`, no deeper than
+    /// the range limit (`options.max_footprint_voxels`); returns the cells updated.
     /// `odom_from_base` is the robot's pose, the centre of heading uncertainty.
+    /// [`GridError::Allocation`] when a sparse grid cannot store the blocks it reaches.
     pub fn integrate(
         &mut self,
         odom_from_camera: &Iso3,
         odom_from_base: &Iso3,
         camera: &Camera,
         probs: &TileProbs,
-    ) -> usize {
+    ) -> Result<usize, GridError> {
         let ev = TileEvidence::from_probabilities(
             probs.rows,
             probs.cols,
@@ -102,21 +113,27 @@ impl Fuser {
             self.grid.prior,
         );
         let camera_from_odom = odom_from_camera.inverse();
+        let depth = max_depth_m(
+            camera,
+            probs.tile_px,
+            self.grid.spec.voxel_size_m,
+            self.options.max_footprint_voxels,
+        );
         if self.options.blur != BlurMode::Observation {
-            return self.grid.integrate(&camera_from_odom, camera, &ev);
+            return self.grid.integrate(&camera_from_odom, camera, &ev, depth);
         }
-        let n = self
-            .grid
-            .frame_evidence(&camera_from_odom, camera, &ev, &mut self.evidence);
+        let n =
+            self.grid
+                .frame_evidence(&camera_from_odom, camera, &ev, depth, &mut self.evidence)?;
         let c = odom_from_base.translation.vector;
         self.blurrer.spread_evidence(
-            &self.grid.spec,
+            &mut self.grid,
             &mut self.evidence,
             [c.x, c.y],
             self.heading_var_rad2.sqrt(),
             self.position_var_m2.sqrt(),
-        );
+        )?;
         self.grid.add_evidence(&self.evidence);
-        n
+        Ok(n)
     }
 }

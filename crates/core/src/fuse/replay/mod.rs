@@ -41,7 +41,7 @@ use prepare::{Context, Prepared, decode_frame, floor_params, prepare};
 
 use thiserror::Error;
 
-use crate::fuse::grid::{Grid, GridError, TileEvidence};
+use crate::fuse::grid::{Budget, Grid, GridError, GridStorage, TileEvidence};
 use crate::fuse::locate::{View, ray_centre};
 use crate::fuse::motion::{BlurMode, Segment};
 use crate::fuse::objects::{Object, ObjectParams, find_objects_with_cells};
@@ -149,6 +149,17 @@ pub struct FuseOptions {
     /// it existed read as choosing nothing.
     #[serde(default)]
     pub fit: SessionFit,
+    /// The range limit of a frame's update: it stops at the depth where a tile's footprint
+    /// exceeds this many cells (beyond, one tile's value covers a wall of cells and locates
+    /// nothing; see [`crate::fuse::grid::max_depth_m`]); None for no limit. Default
+    /// [`DEFAULT_MAX_FOOTPRINT_VOXELS`]; absent from reports written before it existed, which
+    /// had no limit.
+    #[serde(default)]
+    pub max_footprint_voxels: Option<f64>,
+    /// Which blocks of the grid are stored (default auto: dense for a room-sized grid, sparse
+    /// for a larger one); the grid's values do not depend on it.
+    #[serde(default)]
+    pub grid_storage: GridStorage,
 }
 
 /// Where an object's location (`centroid_m`) comes from (`fuse --locate`).
@@ -174,6 +185,10 @@ pub enum Locate {
     /// rays from one direction, a point outside the object).
     Detections,
 }
+
+/// The default range limit ([`FuseOptions::max_footprint_voxels`]): a tile's update stops
+/// where its footprint exceeds this many cells.
+pub const DEFAULT_MAX_FOOTPRINT_VOXELS: f64 = 8.0;
 
 /// Where the replay takes the robot poses of frames from (`--poses`).
 #[derive(
@@ -203,6 +218,8 @@ impl Default for FuseOptions {
             refine_floor: true,
             locate: Locate::Extent,
             fit: SessionFit::ALL,
+            max_footprint_voxels: Some(DEFAULT_MAX_FOOTPRINT_VOXELS),
+            grid_storage: GridStorage::Auto,
         }
     }
 }
@@ -356,11 +373,11 @@ pub fn replay(
     let ctx = prepare(reader, classifier, &options.normalised(), observers)?;
     let options = &ctx.options.clone();
     for o in observers.iter_mut() {
-        o.on_start(
-            &ctx.data,
-            &Grid::new(ctx.spec, ctx.prior).map_err(|e| ctx.grid_err(e))?,
-        )
-        .map_err(|e| ctx.observer_err(None, e))?;
+        // An empty sparse grid: the same cells as the pass's fresh one, none allocated.
+        let fresh = Grid::with_storage(ctx.spec, ctx.prior, GridStorage::Sparse, Budget::default())
+            .map_err(|e| ctx.grid_err(e))?;
+        o.on_start(&ctx.data, &fresh)
+            .map_err(|e| ctx.observer_err(None, e))?;
     }
     let first = run_pass(&ctx, options, observers, None)?;
     let mut refinement = None;

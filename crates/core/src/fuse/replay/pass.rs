@@ -196,7 +196,8 @@ fn step(
         &pass.poses,
         index,
         localised,
-    );
+    )
+    .map_err(|e| ctx.grid_err(e))?;
     let objects = find_objects(&pass.fuser.grid, &options.objects);
     if options.refine_poses {
         tracker.last_objects.clone_from(&objects);
@@ -315,12 +316,7 @@ fn localise_frame(
 
 /// Highest cell probability of `grid`, in [0, 1].
 fn max_probability(grid: &Grid) -> f64 {
-    let max_l = grid
-        .log_odds
-        .iter()
-        .copied()
-        .fold(f32::NEG_INFINITY, f32::max);
-    crate::fuse::grid::sigmoid(f64::from(max_l))
+    crate::fuse::grid::sigmoid(f64::from(grid.max_log_odds()))
 }
 
 fn summary(
@@ -459,7 +455,7 @@ fn fuse_one(
     poses: &[Iso3],
     index: usize,
     localised: bool,
-) -> Vec<Segment> {
+) -> Result<Vec<Segment>, crate::fuse::grid::GridError> {
     let p = &prepared[index];
     let odom_from_base = poses[index];
     // Motion since the previous frame blurs the belief (nothing before the first one: the
@@ -486,10 +482,10 @@ fn fuse_one(
     };
     for seg in &segments {
         let pose = drift * data.odom_at(seg.start_ns).unwrap_or(p.odometry);
-        fuser.blur(seg, &pose);
+        fuser.blur(seg, &pose)?;
     }
     let odom_from_camera = odom_from_base * p.mount;
     fuser.last_cells_updated =
-        fuser.integrate(&odom_from_camera, &odom_from_base, &data.camera, &p.probs);
-    segments
+        fuser.integrate(&odom_from_camera, &odom_from_base, &data.camera, &p.probs)?;
+    Ok(segments)
 }
