@@ -215,7 +215,10 @@ fn predict_at_camera_resolution(sessions: &[LoadedSession]) {
             region: None,
             ..TrainConfig::default()
         };
-        let model = examples(sessions, &cfg).and_then(|set| fit_model(sessions, &set, &cfg));
+        let model = match examples(sessions, &cfg) {
+            Ok(set) => fit_model(sessions, &set, &cfg),
+            Err(e) => Err(e),
+        };
         let model = match model {
             Ok(m) => m,
             Err(e) => {
