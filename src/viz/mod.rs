@@ -179,18 +179,20 @@ impl std::fmt::Debug for VizStream {
     }
 }
 
-/// Chunks cut by size and row count alone, never by time: the default batcher cuts chunks on
-/// a 200 ms timer, so two identical replays would be chunked differently and `rerun rrd
-/// compare` would call them different. One chunk per `log` call (what objloc did before)
-/// also compares equal, but the SDK's memory grew by about 130 kB a frame with it (a 1000-frame
-/// replay peaked at 190 MB against 86 MB for 200 frames; the Rust SDK's memory growth with
-/// small chunks is rerun-io/rerun#12623); at 64 rows or 1 MiB a chunk it is 102 MB against
-/// 86 MB (docs/scale.md).
+/// Chunks cut by row count alone, never by time or size: the default batcher cuts chunks on a
+/// 200 ms timer, so two identical replays would be chunked differently and `rerun rrd compare`
+/// would call them different. Nor by size: the SDK's size of a row is not a function of its
+/// values alone (the same grid rows were cut after 4 rows in one run and 5 in another, at 1, 2
+/// and 3 threads). One chunk per `log` call (what objloc did before) also compares equal, but
+/// the SDK's memory grew by about 130 kB a frame with it (a 1000-frame replay peaked at 190 MB
+/// against 86 MB for 200 frames; the Rust SDK's memory growth with small chunks is
+/// rerun-io/rerun#12623); 16 rows a chunk keeps it flat (docs/scale.md) and bounds what waits
+/// in the batcher (a grid row of 30 000 shown cells is about 0.5 MB).
 fn deterministic_batches() -> rerun::log::ChunkBatcherConfig {
     rerun::log::ChunkBatcherConfig {
         flush_tick: std::time::Duration::MAX,
-        flush_num_bytes: 1 << 20,
-        flush_num_rows: 64,
+        flush_num_bytes: u64::MAX,
+        flush_num_rows: 16,
         ..rerun::log::ChunkBatcherConfig::DEFAULT
     }
 }

@@ -428,9 +428,23 @@ fn fuse_refuses_bad_input_with_one_line_errors_and_no_outputs() {
     let line = one_line_error(&fuse(&["--model", p(&corrupt)]));
     assert!(line.contains("corrupt.json"), "{line}");
 
-    // A grid far beyond the memory limit is refused before allocating, with the size.
-    let line = one_line_error(&fuse(&["--model", p(&model), "--voxel", "0.001"]));
+    // A grid far beyond the memory limit is refused before allocating, with the size: at
+    // 1 mm stored dense, and at 0.2 mm even sparse (its table of blocks alone: 28 500 x
+    // 28 500 x 8 500 cells). (At 1 mm a sparse grid stores only what the views reach.)
+    let line = one_line_error(&fuse(&[
+        "--model",
+        p(&model),
+        "--voxel",
+        "0.001",
+        "--grid-storage",
+        "dense",
+    ]));
     assert!(line.contains("MiB") && line.contains("--voxel"), "{line}");
+    let line = one_line_error(&fuse(&["--model", p(&model), "--voxel", "0.0002"]));
+    assert!(
+        line.contains("table of blocks") && line.contains("MiB") && line.contains("--voxel"),
+        "{line}"
+    );
 
     // A malformed flag is a usage error: clap's exit code 2, naming the flag and the value.
     let out = fuse(&["--model", p(&model), "--bounds", "0,0,0,1,1"]);
