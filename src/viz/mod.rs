@@ -186,13 +186,14 @@ impl std::fmt::Debug for VizStream {
 /// and 3 threads). One chunk per `log` call (what objloc did before) also compares equal, but
 /// the SDK's memory grew by about 130 kB a frame with it (a 1000-frame replay peaked at 190 MB
 /// against 86 MB for 200 frames; the Rust SDK's memory growth with small chunks is
-/// rerun-io/rerun#12623); 16 rows a chunk keeps it flat (docs/scale.md) and bounds what waits
-/// in the batcher (a grid row of 30 000 shown cells is about 0.5 MB).
+/// rerun-io/rerun#12623). Rows wait in the batcher until their chunk is cut, so fewer rows a
+/// chunk cost less memory: the 200- and 1000-stop tours peak at 98 and 126 MB with 8, 134 and
+/// 164 MB with 16, 254 and 375 MB with 64 (docs/scale.md).
 fn deterministic_batches() -> rerun::log::ChunkBatcherConfig {
     rerun::log::ChunkBatcherConfig {
         flush_tick: std::time::Duration::MAX,
         flush_num_bytes: u64::MAX,
-        flush_num_rows: 16,
+        flush_num_rows: 8,
         ..rerun::log::ChunkBatcherConfig::DEFAULT
     }
 }
