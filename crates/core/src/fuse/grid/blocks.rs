@@ -62,6 +62,12 @@ impl Layout {
         }
     }
 
+    /// Whether every block is stored in block order (block b in slot b + 1), as
+    /// [`Layout::full`] lays them out.
+    pub(crate) fn is_full(&self) -> bool {
+        self.sorted && self.slots() == self.table.len() + 1
+    }
+
     /// Index of block (bi, bj, bk).
     #[inline]
     pub(crate) fn block_index(&self, b: [usize; 3]) -> usize {

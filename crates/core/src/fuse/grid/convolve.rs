@@ -68,9 +68,6 @@ pub trait ColumnKernel: Sync {
     fn samples(&self, i: usize, j: usize, out: &mut Vec<([i64; 2], f64)>);
 }
 
-/// Marks a source tap outside the grid.
-const OUTSIDE: usize = usize::MAX;
-
 /// One pass of `kernel` over `src` (laid out by `layout`): writes the blocks it computes,
 /// ascending, to `blocks`, and their values to `out`, a zero block first and then one block
 /// per entry of `blocks`; each value with a magnitude below `flush_below` becomes 0.
@@ -276,6 +273,7 @@ fn block_column<T: Sample>(
 ) {
     let [nx, ny, nz] = spec.dims;
     let [_, nby, nbz] = layout.bdims;
+    let full = layout.is_full();
     let mut samples = Vec::new();
     let mut taps: Vec<(usize, usize, T)> = Vec::new();
     for a in 0..BLOCK {
@@ -287,26 +285,32 @@ fn block_column<T: Sample>(
             }
             samples.clear();
             kernel.samples(i, j, &mut samples);
+            // A tap outside the grid reads zeros and adds w * 0 = +0, which leaves a sum
+            // unchanged (a sum is never -0: it starts at +0), so it is left out.
             taps.clear();
-            taps.extend(samples.iter().map(|&([ci, cj], w)| {
-                if ci >= 0 && cj >= 0 && (ci as usize) < nx && (cj as usize) < ny {
-                    let (ci, cj) = (ci as usize, cj as usize);
-                    let row = ((ci / BLOCK) * nby + cj / BLOCK) * nbz;
-                    (
-                        row,
-                        ((ci % BLOCK) * BLOCK + cj % BLOCK) * BLOCK,
-                        T::from_f64(w),
-                    )
-                } else {
-                    (OUTSIDE, 0, T::from_f64(w))
-                }
-            }));
+            taps.extend(
+                samples
+                    .iter()
+                    .filter(|&&([ci, cj], _)| {
+                        ci >= 0 && cj >= 0 && (ci as usize) < nx && (cj as usize) < ny
+                    })
+                    .map(|&([ci, cj], w)| {
+                        let (ci, cj) = (ci as usize, cj as usize);
+                        let row = ((ci / BLOCK) * nby + cj / BLOCK) * nbz;
+                        (
+                            row,
+                            ((ci % BLOCK) * BLOCK + cj % BLOCK) * BLOCK,
+                            T::from_f64(w),
+                        )
+                    }),
+            );
             for (q, &block) in bks.iter().enumerate() {
                 let bk = block as usize % nbz;
                 let mut acc = [T::ZERO; BLOCK];
                 for &(row, off, w) in &taps {
-                    let slot = if row == OUTSIDE {
-                        0
+                    // Every block stored in block order: block b in slot b + 1.
+                    let slot = if full {
+                        row + bk + 1
                     } else {
                         layout.table[row + bk] as usize
                     };
