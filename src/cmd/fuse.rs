@@ -101,10 +101,10 @@ pub struct FuseArgs {
     pub min_views: u16,
     /// Evidence (log-odds above the prior) an object must reach somewhere, as a fraction of
     /// the grid's highest.
-    #[arg(long, default_value_t = ObjectParams::default().seed_fraction)]
+    #[arg(long, default_value_t = ObjectParams::default().seed_fraction, value_parser = parse_fraction)]
     pub seed_fraction: f32,
     /// Evidence every cell of an object must have, as a fraction of the grid's highest.
-    #[arg(long, default_value_t = ObjectParams::default().grow_fraction)]
+    #[arg(long, default_value_t = ObjectParams::default().grow_fraction, value_parser = parse_fraction)]
     pub grow_fraction: f32,
     /// Range limit of a frame's update: it stops at the depth where a tile's footprint
     /// exceeds this many cells (`off`: no limit). Beyond it one tile's value covers a wall of
@@ -183,6 +183,16 @@ fn parse_noise(s: &str) -> Result<f64, String> {
     let v: f64 = s.trim().parse().map_err(|e| format!("{s:?}: {e}"))?;
     if !(v.is_finite() && v >= 0.0) {
         return Err(format!("expected a finite speed noise >= 0, got {s}"));
+    }
+    Ok(v)
+}
+
+/// A fraction of the grid's peak evidence in (0, 1]: at 0 or below every cell at the prior
+/// would qualify, whether stored or not.
+fn parse_fraction(s: &str) -> Result<f32, String> {
+    let v: f32 = s.trim().parse().map_err(|e| format!("{s:?}: {e}"))?;
+    if !(v > 0.0 && v <= 1.0) {
+        return Err(format!("expected a fraction in (0, 1], got {s}"));
     }
     Ok(v)
 }

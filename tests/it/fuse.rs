@@ -459,12 +459,21 @@ fn fuse_refuses_bad_input_with_one_line_errors_and_no_outputs() {
         ("--sigma-v", "-1", ">= 0"),
         ("--sigma-w", "nan", ">= 0"),
         ("--clamp", "0.9,0.1", "0 < LO < HI < 1"),
+        // At 0 every cell at the prior would qualify, stored or not.
+        ("--grow-fraction", "0", "(0, 1]"),
+        ("--seed-fraction", "1.5", "(0, 1]"),
     ] {
         let out = fuse(&["--model", p(&model), &format!("{flag}={value}")]);
         assert_eq!(out.status.code(), Some(2), "{flag}={value}");
         let err = String::from_utf8_lossy(&out.stderr);
         assert!(err.contains(flag) && err.contains(says), "{err}");
     }
+    // A prior so near 0 that the probability blur would underflow is refused, naming it.
+    let line = one_line_error(&fuse(&["--model", p(&model), "--prior", "1e-12"]));
+    assert!(
+        line.contains("prior 0.000000000001") || line.contains("prior 1e-12"),
+        "{line}"
+    );
     // --no-floor only means something when refining.
     let out = fuse(&["--model", p(&model), "--no-refine-poses", "--no-floor"]);
     assert_eq!(out.status.code(), Some(2));

@@ -242,13 +242,14 @@ impl Rotate {
 
 impl ColumnKernel for Rotate {
     fn reach_cells(&self, lo: [usize; 2], hi: [usize; 2]) -> [usize; 2] {
-        // A cell at radius r reads points at most r * phi away (phi = the widest angle), each
-        // through its bilinear neighbours (within 1.5 cells); a cell reading a source at
-        // radius at most R is then at most (R phi + 1.5 v) / (1 - phi) from it.
-        let phi = SPAN_SIGMAS * self.sigma_rad;
-        if phi >= 1.0 {
-            return [usize::MAX; 2];
-        }
+        // A rotation keeps a point's radius: a cell at radius r reads points on its circle at
+        // most r * min(phi, 2) away (phi = the widest angle; a chord is at most the arc and
+        // at most the diameter), each through its bilinear neighbours (within 1.5 cells). So a
+        // cell that reads a non-zero source has r at most R + 1.5 v (R: the farthest non-zero
+        // cell centre, within a cell of the box's corners) and lies at most
+        // min(phi, 2) (R + 2.5 v) + 1.5 v from it: finite for any angle, so however wide a
+        // turn, a blur never needs more than the blocks around the non-zero ones.
+        let phi = (SPAN_SIGMAS * self.sigma_rad).min(2.0);
         let v = self.spec.voxel_size_m;
         let o = self.spec.origin_m;
         let r_max = [
@@ -262,7 +263,7 @@ impl ColumnKernel for Rotate {
             (o[0] + x as f64 * v - self.center_xy[0]).hypot(o[1] + y as f64 * v - self.center_xy[1])
         })
         .fold(0.0f64, f64::max);
-        let d = (r_max * phi + 1.5 * v) / (1.0 - phi);
+        let d = phi * (r_max + 2.5 * v) + 1.5 * v;
         let cells = (d / v).ceil() + 1.0;
         if cells.is_finite() && cells < 1e15 {
             [cells as usize; 2]
@@ -325,9 +326,10 @@ impl Blurrer {
             &grid.evidence,
             kernel,
             FLUSH_EVIDENCE,
+            &|slots| grid.check_budget(slots),
             &mut self.blocks,
             &mut self.out32,
-        );
+        )?;
         grid.adopt_evidence(&mut self.blocks, &mut self.out32)
     }
 
@@ -354,9 +356,10 @@ impl Blurrer {
             &self.src64,
             kernel,
             0.0,
+            &|slots| grid.check_budget(slots),
             &mut self.blocks,
             &mut self.out64,
-        );
+        )?;
         self.out32.resize(self.out64.len(), 0.0);
         self.out32
             .par_iter_mut()
@@ -451,9 +454,10 @@ impl Blurrer {
                 &self.src64,
                 k,
                 f64::from(FLUSH_EVIDENCE),
+                &|slots| grid.check_budget(slots),
                 &mut self.blocks,
                 &mut self.out64,
-            );
+            )?;
             grid.adopt_layout(&mut self.blocks, &mut self.out64)?;
             std::mem::swap(&mut self.src64, &mut self.out64);
         }

@@ -9,7 +9,7 @@ use super::*;
 
 impl Grid {
     /// A dense grid at the prior everywhere, no views, no clamp, the default [`Budget`];
-    /// [`GridError::Prior`] unless 0 < `prior` < 1.
+    /// [`GridError::Prior`] unless [`MIN_PRIOR`] <= `prior` <= 1 - [`MIN_PRIOR`].
     pub fn new(spec: GridSpec, prior: f64) -> Result<Self, GridError> {
         Self::with_storage(spec, prior, GridStorage::Dense, Budget::default())
     }
@@ -22,7 +22,7 @@ impl Grid {
         storage: GridStorage,
         budget: Budget,
     ) -> Result<Self, GridError> {
-        if !(prior > 0.0 && prior < 1.0) {
+        if !((MIN_PRIOR..=1.0 - MIN_PRIOR).contains(&prior)) {
             return Err(GridError::Prior { prior });
         }
         let storage = storage.resolve(&spec);

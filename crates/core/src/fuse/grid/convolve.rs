@@ -10,8 +10,8 @@
 
 use rayon::prelude::*;
 
-use super::GridSpec;
 use super::blocks::{BLOCK, BLOCK_CELLS, Layout};
+use super::{GridError, GridSpec};
 
 /// A blur buffer's element: weights are computed in f64 and converted once per sample.
 pub trait Sample:
@@ -71,15 +71,20 @@ pub trait ColumnKernel: Sync {
 /// One pass of `kernel` over `src` (laid out by `layout`): writes the blocks it computes,
 /// ascending, to `blocks`, and their values to `out`, a zero block first and then one block
 /// per entry of `blocks`; each value with a magnitude below `flush_below` becomes 0.
+/// `budget(slots)` is asked before `out` grows to the blocks computed (plus the zero block):
+/// a blur reaching far (a wide turn on a building-sized grid) is refused with its error
+/// instead of allocating past the grid's limit.
+#[allow(clippy::too_many_arguments)]
 pub(crate) fn convolve<T: Sample>(
     spec: &GridSpec,
     layout: &Layout,
     src: &[T],
     kernel: &dyn ColumnKernel,
     flush_below: T,
+    budget: &dyn Fn(usize) -> Result<(), GridError>,
     blocks: &mut Vec<u32>,
     out: &mut Vec<T>,
-) {
+) -> Result<(), GridError> {
     if layout.slots() - 1 == layout.table.len() {
         // Every block stored (a dense grid): every block is computed.
         *blocks = layout
@@ -97,6 +102,7 @@ pub(crate) fn convolve<T: Sample>(
             .collect();
         *blocks = candidates(spec, layout, &nonzero, kernel);
     }
+    budget(blocks.len() + 1)?;
     out.clear();
     out.resize((blocks.len() + 1) * BLOCK_CELLS, T::ZERO);
     // Blocks of one block column are adjacent in `blocks`: each column is one task, so the
@@ -121,6 +127,7 @@ pub(crate) fn convolve<T: Sample>(
         let bcol = [col / layout.bdims[1], col % layout.bdims[1]];
         block_column(spec, layout, src, kernel, flush_below, bcol, bks, dst);
     });
+    Ok(())
 }
 
 /// The blocks a pass computes: every stored block and every block within the kernel's reach

@@ -60,6 +60,11 @@ pub const F64_BLUR_BYTES_PER_CELL: u64 = 8 + 8;
 /// MiB at [`BYTES_PER_CELL`]) and sparsely beyond: every room-sized grid is dense.
 pub const AUTO_DENSE_MAX_CELLS: usize = 1 << 25;
 
+/// The smallest prior probability (and 1 less the largest) a grid takes: a prior nearer 0 or
+/// 1 underflows in the probability blur, where the prior's probability is subtracted from
+/// every cell's (1e-9: about 21 in log-odds, far beyond any classifier's base rate).
+pub const MIN_PRIOR: f64 = 1e-9;
+
 /// Evidence (log-odds) of a magnitude below this is 0 after a blur: 2^-20, a likelihood ratio
 /// within 1e-6 of 1 and two f32 steps of a log-odds near the prior's (magnitude 4 to 8, where
 /// a step is 4.8e-7), so flushing moves a cell's log-odds by at most that. Without it the
@@ -154,8 +159,8 @@ pub enum GridError {
         /// The limit in MiB.
         limit_mib: u64,
     },
-    /// The prior probability is not strictly between 0 and 1.
-    #[error("prior {prior} must lie strictly between 0 and 1")]
+    /// The prior probability is outside [`MIN_PRIOR`, 1 - `MIN_PRIOR`].
+    #[error("prior {prior} must lie within [1e-9, 1 - 1e-9]")]
     Prior {
         /// The requested prior probability.
         prior: f64,

@@ -150,6 +150,59 @@ fn sparse_and_dense_match_the_reference_through_updates_and_blurs() {
     }
 }
 
+/// Turns wider than a radian (sigma 0.3 and 0.6 rad: 4 sigma up to 2.4 rad, where the reach
+/// was once unbounded) about a centre off the evidence: the sparse grid's candidate blocks
+/// cover every cell the rotation reaches, so it equals the reference and the dense grid, and
+/// it stores less than the whole grid.
+#[test]
+fn a_wide_turn_keeps_sparse_and_dense_alike() {
+    let spec = GridSpec::from_bounds([-1.6, -1.6, 0.0], [1.6, 1.6, 0.4], 0.05).unwrap();
+    for sigma in [0.3, 0.6] {
+        let mut dense = Grid::new(spec, 0.02).unwrap();
+        let mut sp = sparse(spec, 0.02);
+        let mut plain = Plain::new(spec);
+        for (i, j) in [(40, 33), (41, 33), (40, 34)] {
+            let idx = spec.index(i, j, 3);
+            dense.set_cell(idx, 9.0, 5).unwrap();
+            sp.set_cell(idx, 9.0, 5).unwrap();
+            plain.evidence[idx] = 9.0;
+            plain.views[idx] = 5;
+        }
+        let kernel = Rotate::new(&spec, [-0.4, 0.2], sigma).unwrap();
+        plain.blur(&kernel);
+        Blurrer::default()
+            .log_odds_blur(&mut dense, &kernel)
+            .unwrap();
+        Blurrer::default().log_odds_blur(&mut sp, &kernel).unwrap();
+        plain.assert_same(&dense, &format!("dense, sigma {sigma}"));
+        plain.assert_same(&sp, &format!("sparse, sigma {sigma}"));
+        assert_eq!(dense.sha256_hex(), sp.sha256_hex());
+        assert!(sp.stored_cells() < dense.stored_cells(), "sigma {sigma}");
+    }
+}
+
+/// A blur whose reach needs more blocks than the budget allows stops with the budget's
+/// error before its buffers grow, and leaves the grid as it was.
+#[test]
+fn a_blur_over_the_budget_is_refused_before_allocating() {
+    let spec = GridSpec::from_bounds([-2.0, -2.0, 0.0], [2.0, 2.0, 0.4], 0.05).unwrap();
+    // 10 x 10 x 1 blocks: room for the table, the zero block and 4 more.
+    let budget = Budget {
+        max_bytes: 100 * 4 + 5 * 4 + 5 * 512 * SPARSE_BYTES_PER_CELL,
+        f64_blur: false,
+    };
+    let mut g = Grid::with_storage(spec, 0.02, GridStorage::Sparse, budget).unwrap();
+    g.set_cell(spec.index(40, 40, 2), 9.0, 5).unwrap();
+    let before = g.clone();
+    let kernel = Translate::new(&spec, [1.0, 0.0], 0.5).unwrap();
+    let e = Blurrer::default()
+        .log_odds_blur(&mut g, &kernel)
+        .unwrap_err();
+    assert!(matches!(e, GridError::Allocation { .. }), "{e:?}");
+    assert_eq!(g.sha256_hex(), before.sha256_hex());
+    assert_eq!(g.stored_cells(), before.stored_cells());
+}
+
 /// Evidence in the last cell of a block, blurred along x: the cells it reaches in the next
 /// block hold the reference's values, and the sparse grid stores that block.
 #[test]
