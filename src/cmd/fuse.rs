@@ -355,8 +355,12 @@ pub fn write_outputs(f: &Fused, report: Option<&Path>, grid: Option<&Path>) -> a
     Ok(())
 }
 
+/// Bytes of x-slabs [`write_grid`] holds at a time (at least one slab, at most eight).
+const EXPORT_BATCH_BYTES: usize = 64 << 20;
+
 /// The probabilities of `region` of `grid` to `path` as float32 `.npy`, x-slab by x-slab
-/// (eight made at a time in parallel), never whole in memory.
+/// (up to eight, and up to [`EXPORT_BATCH_BYTES`], made at a time in parallel), never whole
+/// in memory unless one slab is the whole region.
 fn write_grid(
     grid: &objloc_core::fuse::grid::Grid,
     region: &objloc_core::fuse::grid::Region,
@@ -365,7 +369,9 @@ fn write_grid(
     use rayon::prelude::*;
     let first = region.first_cell[0];
     let slabs: Vec<usize> = (first..first + region.dims[0]).collect();
-    let parts = slabs.chunks(8).flat_map(|chunk| {
+    let slab_bytes = (region.dims[1] * region.dims[2] * 4).max(1);
+    let batch = (EXPORT_BATCH_BYTES / slab_bytes).clamp(1, 8);
+    let parts = slabs.chunks(batch).flat_map(|chunk| {
         chunk
             .par_iter()
             .map(|&i| grid.probability_slab(region, i))
