@@ -120,6 +120,19 @@ pub enum GridError {
         /// [`MAX_GRID_BYTES`] in MiB.
         limit_mib: u64,
     },
+    /// One frame's plan of its update (a span of cells per column it can reach) would exceed
+    /// the grid's limit: a frame without a range limit on a building-sized grid.
+    #[error(
+        "one frame can reach {columns} columns of cells, {needed_mib} MiB to plan its update, over the limit of {limit_mib} MiB; keep a range limit (--max-footprint), or use a larger --voxel or smaller --bounds"
+    )]
+    Columns {
+        /// Columns of cells the frame's box reaches.
+        columns: u64,
+        /// Bytes of the plan, in MiB.
+        needed_mib: u64,
+        /// [`MAX_GRID_BYTES`] in MiB.
+        limit_mib: u64,
+    },
     /// A sparse grid's stored blocks would exceed its limit.
     #[error(
         "the sparse grid of {nx} x {ny} x {nz} cells would need {needed_mib} MiB to store the {cells} cells its views and blur have reached, over the limit of {limit_mib} MiB; use a larger --voxel, smaller --bounds or a smaller --max-footprint"

@@ -11,7 +11,7 @@ use nalgebra::{Point3, Vector3};
 use rayon::prelude::*;
 
 use super::blocks::{BLOCK, BLOCK_CELLS, Layout};
-use super::{GridSpec, TileEvidence};
+use super::{GridError, GridSpec, TileEvidence};
 use crate::types::geometry::{Camera, Iso3};
 
 /// Cells added on each side of a column's computed span (see [`column_span`]).
@@ -38,14 +38,16 @@ pub(super) struct Projector<'a> {
 
 impl<'a> Projector<'a> {
     /// The frame seen from `camera_from_odom`; cells deeper than `max_depth_m` (metres along
-    /// the optical axis; infinite for no limit) are out of its reach.
+    /// the optical axis; infinite for no limit) are out of its reach. [`GridError::Columns`]
+    /// when its plan (8 bytes a column of the box it can reach) would exceed `max_bytes`.
     pub(super) fn new(
         spec: &GridSpec,
         camera_from_odom: &Iso3,
         camera: &Camera,
         ev: &'a TileEvidence,
         max_depth_m: f64,
-    ) -> Self {
+        max_bytes: u64,
+    ) -> Result<Self, GridError> {
         let tile = f64::from(ev.tile_px);
         let mut p = Self {
             spec: *spec,
@@ -64,8 +66,17 @@ impl<'a> Projector<'a> {
             spans: Vec::new(),
         };
         (p.lo, p.hi) = p.reach();
+        let columns = ((p.hi[0] - p.lo[0]) * (p.hi[1] - p.lo[1])) as u64;
+        let needed = columns * std::mem::size_of::<(u32, u32)>() as u64;
+        if needed > max_bytes {
+            return Err(GridError::Columns {
+                columns,
+                needed_mib: needed >> 20,
+                limit_mib: max_bytes >> 20,
+            });
+        }
         p.spans = p.column_spans();
-        p
+        Ok(p)
     }
 
     /// The box of cells that can lie in the frustum: with a range limit, the cells around the

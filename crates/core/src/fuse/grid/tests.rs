@@ -150,6 +150,34 @@ fn sparse_and_dense_match_the_reference_through_updates_and_blurs() {
     }
 }
 
+/// Without a range limit a frame can reach every column of the grid, and planning its update
+/// costs 8 bytes a column: over the budget that is a one-line error naming the columns, and
+/// the grid is unchanged; with a range limit the same frame fits.
+#[test]
+fn a_frame_whose_plan_exceeds_the_budget_is_refused() {
+    let spec = GridSpec::from_bounds([-2.0, -2.0, 0.0], [2.0, 2.0, 1.0], 0.05).unwrap();
+    // 80 x 80 columns: 51 200 bytes of spans, over a budget of 40 000 bytes.
+    let budget = Budget {
+        max_bytes: 40_000,
+        f64_blur: false,
+    };
+    let mut g = Grid::with_storage(spec, 0.01, GridStorage::Sparse, budget).unwrap();
+    let cam = Camera::with_hfov(64, 48, 1.0);
+    let pose = iso_from_xy_yaw(-1.5, 0.0, 0.0) * camera_mount([0.0, 0.0, 0.5], 0.0);
+    let ev = random_evidence(5, 6, 8, 0.01);
+    let e = g
+        .integrate(&pose.inverse(), &cam, &ev, f64::INFINITY)
+        .unwrap_err();
+    assert!(
+        matches!(e, GridError::Columns { columns: 6400, .. }),
+        "{e:?}"
+    );
+    assert!(e.to_string().contains("--max-footprint"), "{e}");
+    assert_eq!(g.stored_cells(), 0);
+    g.integrate(&pose.inverse(), &cam, &ev, 0.3).unwrap();
+    assert!(g.stored_cells() > 0);
+}
+
 /// Turns wider than a radian (sigma 0.3 and 0.6 rad: 4 sigma up to 2.4 rad, where the reach
 /// was once unbounded) about a centre off the evidence: the sparse grid's candidate blocks
 /// cover every cell the rotation reaches, so it equals the reference and the dense grid, and

@@ -29,7 +29,14 @@ impl Grid {
         ev: &TileEvidence,
         max_depth_m: f64,
     ) -> Result<usize, GridError> {
-        let proj = Projector::new(&self.spec, camera_from_odom, camera, ev, max_depth_m);
+        let proj = Projector::new(
+            &self.spec,
+            camera_from_odom,
+            camera,
+            ev,
+            max_depth_m,
+            self.budget.max_bytes,
+        )?;
         self.store(&proj.new_blocks(&self.layout))?;
         let clamp = self.evidence_clamp();
         Ok(
@@ -54,7 +61,14 @@ impl Grid {
         max_depth_m: f64,
         out: &mut Vec<f32>,
     ) -> Result<usize, GridError> {
-        let proj = Projector::new(&self.spec, camera_from_odom, camera, ev, max_depth_m);
+        let proj = Projector::new(
+            &self.spec,
+            camera_from_odom,
+            camera,
+            ev,
+            max_depth_m,
+            self.budget.max_bytes,
+        )?;
         self.store(&proj.new_blocks(&self.layout))?;
         out.clear();
         out.resize(self.evidence.len(), 0.0);
