@@ -136,6 +136,13 @@ fn config(args: &Args) -> anyhow::Result<TrainConfig> {
             cfg.tile_px
         );
     }
+    // Light variants are cut for the shifted grids only: without them it would do nothing.
+    anyhow::ensure!(
+        cfg.augment == Augment::None || cfg.train_stride_px < cfg.tile_px,
+        "--augment light varies the shifted training grids, and --train-stride {} px at tile {} px makes none; use a stride below the tile size",
+        cfg.train_stride_px,
+        cfg.tile_px
+    );
     anyhow::ensure!(
         cfg.tree.prune_pseudo.is_finite() && cfg.tree.prune_pseudo >= 0.0,
         "--prune-pseudo {} must be a number >= 0",

@@ -337,18 +337,22 @@ fn bad_inputs_fail_with_one_line_and_no_output() {
             "0",
             "--m-estimate 0 must be a positive number",
         ),
+        // Light variants need shifted grids: at stride 8 (the tile) there are none.
+        (
+            "--train-stride",
+            "8",
+            "--augment light varies the shifted training grids, and --train-stride 8 px at tile 8 px makes none; use a stride below the tile size",
+        ),
     ] {
-        let out = objloc(
-            &[
-                "train",
-                p(&unread_session(dir.path())),
-                "-o",
-                p(&model),
-                flag,
-                value,
-            ],
-            &[],
-        );
+        let augment: &[&str] = if flag == "--train-stride" {
+            &["--augment", "light"]
+        } else {
+            &[]
+        };
+        let session = unread_session(dir.path());
+        let mut args = vec!["train", p(&session), "-o", p(&model), flag, value];
+        args.extend_from_slice(augment);
+        let out = objloc(&args, &[]);
         assert_eq!(one_line_error(&out), format!("error: {expect}"));
         assert!(!model.exists());
     }

@@ -47,10 +47,11 @@ pub enum Channel {
     /// Hue (24) x saturation (3) without brightness, plus dark and grey (74 bins): kept
     /// under a change of exposure or shading.
     Hs,
-    /// Counts of clearly brighter and darker neighbours (45 bins): flat, edge, speck, fine
+    /// Counts of clearly brighter and darker neighbours (46 bins: dark, then 45 counts): flat, edge, speck, fine
     /// texture; kept under rotation and, up to a constant, under a gain.
     Texture,
-    /// Gradient magnitude relative to brightness (flat + 4 levels) x orientation (4) (17 bins).
+    /// Gradient magnitude relative to brightness: dark, flat, then 4 levels x 4 orientations
+    /// (18 bins).
     Grad,
 }
 
@@ -415,6 +416,13 @@ pub fn histograms_of_bins(
 ) -> TileHistograms {
     let rows = whole_tiles(height, dy, tile_px);
     let cols = whole_tiles(width, dx, tile_px);
+    // No whole tile in one direction is none at all (and a frame narrower than the offset
+    // would otherwise slice past its rows' end).
+    let (rows, cols) = if rows == 0 || cols == 0 {
+        (0, 0)
+    } else {
+        (rows, cols)
+    };
     let mut counts = vec![0u16; rows * cols * bins];
     let w = width as usize;
     let t = tile_px as usize;
@@ -584,6 +592,22 @@ mod tests {
         assert_eq!((h.rows, h.cols), (1, 2));
         assert_eq!(h.tile(0)[Rgb332.bin([255, 0, 0])], 12);
         assert_eq!(whole_tiles(10, 12, 4), 0);
+    }
+
+    /// A frame narrower than the grid's offset (3 x 96 px, tile 8, shifted by 4 in x: rows
+    /// of tiles but no column) has no tiles, without slicing past its pixels (it panicked).
+    #[test]
+    fn a_frame_narrower_than_the_offset_has_no_tiles() {
+        let img = Rgb8 {
+            width: 3,
+            height: 96,
+            data: vec![128u8; 3 * 96 * 3],
+        };
+        for (dx, dy) in [(4, 0), (4, 4), (0, 0)] {
+            let h = tile_histograms(&img, FeatureSpec::RGB332, 8, dx, dy);
+            assert_eq!((h.rows, h.cols), (0, 0), "offset ({dx}, {dy})");
+            assert!(h.counts.is_empty());
+        }
     }
 
     #[test]
