@@ -439,10 +439,8 @@ pub fn print_summary(f: &Fused) {
                 "  located from {} frames' detection boxes (rays {:.1} deg apart at most, rms miss {:.4}{m}); the extent's centre was ({:.3}, {:.3}, {:.3})",
                 d.rays, d.spread_deg, d.rms_miss_m, e[0], e[1], e[2]
             );
-        } else if r.options.locate == Locate::Detections {
-            println!(
-                "  located at the extent's centre: its detections do not triangulate (fewer than 3 whole views, rays from one direction, or a point outside the object)"
-            );
+        } else if let Some(why) = &o.not_from_detections {
+            println!("  located at the extent's centre: its detections do not triangulate: {why}");
         }
     }
     for c in &r.fitted {

@@ -11,7 +11,7 @@
 //!
 //! Invariants: a pure function of the frames' detections and poses; frames in order, ties to
 //! the first; a box touching the image border is never used (the object may run past it);
-//! `None` rather than a guess when fewer than [`MIN_RAYS`] frames agree, when their
+//! a [`NotTriangulated`] reason rather than a guess when fewer than [`MIN_RAYS`] frames agree, when their
 //! directions span less than [`MIN_SPREAD_DEG`], when they do not meet
 //! ([`MAX_RMS_MISS_FRACTION`]), or when they meet outside the object's own box in the grid.
 
@@ -58,9 +58,61 @@ pub struct View {
     pub detections: Vec<Detection>,
 }
 
+/// Why an object's detections did not give its centre (the report and stdout say which).
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum NotTriangulated {
+    /// Too few frames see the object wholly.
+    #[error("{rays} frame(s) see it wholly, fewer than {MIN_RAYS}")]
+    FewRays {
+        /// Rays left.
+        rays: usize,
+    },
+    /// The rays are (nearly) parallel.
+    #[error("its {rays} rays are parallel")]
+    Parallel {
+        /// Rays left.
+        rays: usize,
+    },
+    /// The rays come from nearly one direction.
+    #[error("its {rays} rays span {spread_deg:.1} deg, under {MIN_SPREAD_DEG} deg")]
+    Narrow {
+        /// Rays kept.
+        rays: usize,
+        /// Largest angle between two of them, degrees.
+        spread_deg: f64,
+    },
+    /// The rays meet outside the object's box in the grid.
+    #[error("its {rays} rays meet outside the object's box")]
+    Outside {
+        /// Rays kept.
+        rays: usize,
+    },
+    /// The rays do not meet.
+    #[error(
+        "its {rays} rays miss each other by {rms_percent:.1} % of its box's diagonal (rms), over the limit of {} %",
+        MAX_RMS_MISS_FRACTION * 100.0
+    )]
+    Miss {
+        /// Rays kept.
+        rays: usize,
+        /// Their rms miss, percent of the diagonal of the object's box.
+        rms_percent: f64,
+    },
+}
+
+/// Misses below this fraction of the object's half-diagonal are never outliers: a box's
+/// centre is quantised to half a tile, and a camera that stood still gives the same ray
+/// many times, whose equal small misses would otherwise pull the median under every other
+/// ray's (2 % of the diagonal: under the misses the real captures' rays show, 2.4 % and more).
+pub const MISS_FLOOR_FRACTION: f64 = 0.04;
+
 /// The centre of `object` triangulated from the centres of its detections' boxes in `views`;
-/// see the module doc for when it is `None`.
-pub fn ray_centre(object: &Object, views: &[View], camera: &Camera) -> Option<RayCentre> {
+/// see the module doc and [`NotTriangulated`] for when it is not.
+pub fn ray_centre(
+    object: &Object,
+    views: &[View],
+    camera: &Camera,
+) -> Result<RayCentre, NotTriangulated> {
     let seed = Vector3::from(object.centroid_m);
     let lo = Vector3::from(object.bbox_min_m);
     let hi = Vector3::from(object.bbox_max_m);
@@ -73,26 +125,39 @@ pub fn ray_centre(object: &Object, views: &[View], camera: &Camera) -> Option<Ra
         .collect();
     loop {
         if rays.len() < MIN_RAYS {
-            return None;
+            return Err(NotTriangulated::FewRays { rays: rays.len() });
         }
-        let x = nearest_point(&rays)?;
+        let x = nearest_point(&rays).ok_or(NotTriangulated::Parallel { rays: rays.len() })?;
         let miss: Vec<f64> = rays.iter().map(|(o, d)| distance(&x, o, d)).collect();
         let (worst, worst_miss) = miss.iter().enumerate().fold(
             (0, f64::NEG_INFINITY),
             |a, (k, &m)| if m > a.1 { (k, m) } else { a },
         );
-        // Misses below a thousandth of the gate are rounding, never outliers.
-        if worst_miss > (OUTLIER_FACTOR * median(&miss)).max(1e-3 * gate) {
+        if worst_miss > (OUTLIER_FACTOR * median(&miss)).max(MISS_FLOOR_FRACTION * gate) {
             rays.remove(worst);
             continue;
         }
         let spread_deg = spread(&rays).to_degrees();
         let inside = (0..3).all(|a| x[a] >= lo[a] && x[a] <= hi[a]);
         let rms = (miss.iter().map(|m| m * m).sum::<f64>() / miss.len() as f64).sqrt();
-        if spread_deg < MIN_SPREAD_DEG || !inside || rms > MAX_RMS_MISS_FRACTION * 2.0 * gate {
-            return None;
+        let n = rays.len();
+        if spread_deg < MIN_SPREAD_DEG {
+            return Err(NotTriangulated::Narrow {
+                rays: n,
+                spread_deg,
+            });
         }
-        return Some(RayCentre {
+        if !inside {
+            return Err(NotTriangulated::Outside { rays: n });
+        }
+        // A NaN miss (a degenerate box or pose) is refused too.
+        if rms.is_nan() || rms > MAX_RMS_MISS_FRACTION * 2.0 * gate {
+            return Err(NotTriangulated::Miss {
+                rays: n,
+                rms_percent: 100.0 * rms / (2.0 * gate),
+            });
+        }
+        return Ok(RayCentre {
             centre_m: [x.x, x.y, x.z],
             rays: rays.len(),
             rms_miss_m: rms,
@@ -198,6 +263,7 @@ mod tests {
             peak_log_odds: 10.0,
             from_detections: None,
             extent_centre_m: None,
+            not_from_detections: None,
         }
     }
 
@@ -274,7 +340,7 @@ mod tests {
         }
         assert_eq!(
             ray_centre(&object([0.0, 0.0, 0.5], 0.5), &bordered, &cam),
-            None
+            Err(NotTriangulated::FewRays { rays: 2 })
         );
         // Rays that do not meet: every box 0.1 m off the point, alternately left and right,
         // misses it by 0.1 m, a sixth of the 0.6 m diagonal of a 0.3 m box (the limit is a
@@ -290,10 +356,18 @@ mod tests {
                 }
             })
             .collect();
-        assert_eq!(
-            ray_centre(&object([0.0, 0.0, 0.5], 0.15), &scattered, &cam),
-            None
-        );
+        let why = ray_centre(&object([0.0, 0.0, 0.5], 0.15), &scattered, &cam).unwrap_err();
+        match why {
+            // A sixth of the diagonal, give or take the lines' geometry.
+            NotTriangulated::Miss {
+                rays: 6,
+                rms_percent,
+            } => {
+                assert!(rms_percent > 12.0 && rms_percent < 20.0, "{why}")
+            }
+            _ => panic!("{why:?}"),
+        }
+        assert!(why.to_string().contains("rays miss each other by"), "{why}");
         let loose = ray_centre(&object([0.0, 0.0, 0.5], 0.5), &scattered, &cam).unwrap();
         assert!(
             loose.rms_miss_m > 0.05 && loose.rms_miss_m < 0.1,
@@ -321,8 +395,46 @@ mod tests {
         // half-diagonal, 0.35 m) that still admits the rays.
         assert_eq!(
             ray_centre(&object([0.3, 0.0, 0.5], 0.2), &views, &cam),
-            None
+            Err(NotTriangulated::Outside { rays: 4 })
         );
-        assert!(ray_centre(&object([0.1, 0.0, 0.5], 0.2), &views, &cam).is_some());
+        assert!(ray_centre(&object([0.1, 0.0, 0.5], 0.2), &views, &cam).is_ok());
+    }
+
+    /// A camera that stood still gives one ray many times: ten identical rays and six from
+    /// 30 to 60 degrees away, each of those 3 mm off the point. The identical rays' equal
+    /// misses are the median; without a floor every other ray was an outlier in turn (and
+    /// then too few directions were left). With it all are kept and the point is found.
+    #[test]
+    fn repeated_rays_do_not_make_the_others_outliers() {
+        let cam = Camera::with_hfov(256, 240, 1.05);
+        let target = Vector3::new(0.0, 0.0, 0.5);
+        let pose_at = |a: f64| {
+            let (x, y) = (2.0 * a.cos(), 2.0 * a.sin());
+            iso_from_xy_yaw(x, y, (-y).atan2(-x)) * camera_mount([0.0, 0.0, 0.5], 0.0)
+        };
+        let mut views: Vec<View> = (0..10)
+            .map(|_| {
+                let pose = pose_at(0.0);
+                View {
+                    detections: vec![box_at(&cam, &pose, target)],
+                    odom_from_camera: pose,
+                }
+            })
+            .collect();
+        for k in 0..6 {
+            let pose = pose_at(0.5 + 0.1 * f64::from(k));
+            let sign = if k % 2 == 0 { 1.0 } else { -1.0 };
+            let off = pose.rotation * Vector3::x() * (0.003 * sign);
+            views.push(View {
+                detections: vec![box_at(&cam, &pose, target + off)],
+                odom_from_camera: pose,
+            });
+        }
+        let rc = ray_centre(&object([0.0, 0.0, 0.5], 0.15), &views, &cam).unwrap();
+        assert_eq!(rc.rays, 16, "{rc:?}");
+        assert!(
+            (Vector3::from(rc.centre_m) - target).norm() < 0.01,
+            "{rc:?}"
+        );
     }
 }

@@ -84,13 +84,17 @@ pub struct Object {
     /// Highest log-odds in the component (probabilities saturate at 1 in print).
     pub peak_log_odds: f64,
     /// Set when `centroid_m` is the centre triangulated from the boxes of the object's
-    /// detections rather than the centre of its extent (a session with no floor under the
-    /// grid: [`crate::fuse::locate`]); how the rays met.
+    /// detections rather than the centre of its extent (a session without /cmd_vel, or
+    /// `--locate detections`: [`crate::fuse::locate`]); how the rays met.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub from_detections: Option<crate::fuse::locate::RayCentre>,
     /// The centre of the extent that `from_detections` replaced, metres.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub extent_centre_m: Option<[f64; 3]>,
+    /// Why the detections did not locate the object when they were asked to (the location
+    /// is then the extent's centre).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub not_from_detections: Option<String>,
 }
 
 /// Fraction of an object's probability mass left out at each end of each axis when its
@@ -372,6 +376,7 @@ fn summarize(grid: &Grid, members: &[usize]) -> Object {
         peak_log_odds: peak_l,
         from_detections: None,
         extent_centre_m: None,
+        not_from_detections: None,
     }
 }
 

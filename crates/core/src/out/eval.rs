@@ -466,6 +466,7 @@ mod tests {
             peak_log_odds: 5.0,
             from_detections: None,
             extent_centre_m: None,
+            not_from_detections: None,
         }
     }
 

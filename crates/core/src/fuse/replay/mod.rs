@@ -449,10 +449,13 @@ fn locate_from_detections(ctx: &Context<'_>, poses: &[Iso3], objects: &mut [Obje
         })
         .collect();
     for o in objects.iter_mut() {
-        if let Some(rc) = ray_centre(o, &views, &ctx.data.camera) {
-            o.extent_centre_m = Some(o.centroid_m);
-            o.centroid_m = rc.centre_m;
-            o.from_detections = Some(rc);
+        match ray_centre(o, &views, &ctx.data.camera) {
+            Ok(rc) => {
+                o.extent_centre_m = Some(o.centroid_m);
+                o.centroid_m = rc.centre_m;
+                o.from_detections = Some(rc);
+            }
+            Err(why) => o.not_from_detections = Some(why.to_string()),
         }
     }
 }
