@@ -293,9 +293,14 @@ fn ray_chi2(s: &Sighting, p: &Vector3<f64>, centre: &Vector3<f64>, focal_px: f64
     eh * eh + ev * ev
 }
 
-/// Unit vectors across a ray: level (sideways) and the one completing them (up-down).
+/// Unit vectors across a ray: level (sideways) and the one completing them (up-down). A
+/// vertical ray (a camera looking straight down) has no level direction; any pair across it
+/// serves, so x stands in for the vertical (else one such ray dropped the whole landmark).
 fn across_axes(d: &Vector3<f64>) -> Option<(Vector3<f64>, Vector3<f64>)> {
-    let h = d.cross(&Vector3::z()).try_normalize(1e-9)?;
+    let h = d
+        .cross(&Vector3::z())
+        .try_normalize(1e-9)
+        .or_else(|| d.cross(&Vector3::x()).try_normalize(1e-9))?;
     Some((h, d.cross(&h)))
 }
 
@@ -399,4 +404,24 @@ pub(super) fn associate(
         }
     }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A ray straight down still has two unit axes across it, orthogonal to it and to each
+    /// other; a level ray's first axis is level.
+    #[test]
+    fn axes_across_vertical_and_level_rays() {
+        for d in [-Vector3::z(), Vector3::z(), Vector3::new(0.6, 0.0, -0.8)] {
+            let (h, v) = across_axes(&d).unwrap();
+            for (a, b) in [(h, d), (v, d), (h, v)] {
+                assert!(a.dot(&b).abs() < 1e-12, "{d:?}");
+            }
+            assert!((h.norm() - 1.0).abs() < 1e-12 && (v.norm() - 1.0).abs() < 1e-12);
+        }
+        let (h, _) = across_axes(&Vector3::new(0.6, 0.0, -0.8)).unwrap();
+        assert!(h.z.abs() < 1e-12);
+    }
 }
