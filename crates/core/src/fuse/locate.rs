@@ -251,6 +251,12 @@ mod tests {
         }
     }
 
+    /// A level camera 0.5 m up on a circle of 2 m about the origin at angle `a`, facing it.
+    fn pose_at(a: f64) -> Iso3 {
+        let (x, y) = (2.0 * a.cos(), 2.0 * a.sin());
+        iso_from_xy_yaw(x, y, (-y).atan2(-x)) * camera_mount([0.0, 0.0, 0.5], 0.0)
+    }
+
     fn object(centroid: [f64; 3], half: f64) -> Object {
         Object {
             centroid_m: centroid,
@@ -308,10 +314,6 @@ mod tests {
     fn outliers_border_boxes_and_too_few_views() {
         let cam = Camera::with_hfov(256, 240, 1.05);
         let target = Vector3::new(0.0, 0.0, 0.5);
-        let pose_at = |a: f64| {
-            let (x, y) = (2.0 * a.cos(), 2.0 * a.sin());
-            iso_from_xy_yaw(x, y, (-y).atan2(-x)) * camera_mount([0.0, 0.0, 0.5], 0.0)
-        };
         let mut views: Vec<View> = (0..6)
             .map(|k| {
                 let pose = pose_at(f64::from(k) * 0.5);
@@ -408,10 +410,6 @@ mod tests {
     fn repeated_rays_do_not_make_the_others_outliers() {
         let cam = Camera::with_hfov(256, 240, 1.05);
         let target = Vector3::new(0.0, 0.0, 0.5);
-        let pose_at = |a: f64| {
-            let (x, y) = (2.0 * a.cos(), 2.0 * a.sin());
-            iso_from_xy_yaw(x, y, (-y).atan2(-x)) * camera_mount([0.0, 0.0, 0.5], 0.0)
-        };
         let mut views: Vec<View> = (0..10)
             .map(|_| {
                 let pose = pose_at(0.0);

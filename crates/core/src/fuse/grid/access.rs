@@ -211,7 +211,7 @@ impl Grid {
 
     /// Whether every cell of the grid lies in a stored block.
     pub fn is_fully_stored(&self) -> bool {
-        self.layout.slots() - 1 == self.layout.table.len()
+        self.layout.stores_every_block()
     }
 
     /// Highest log-odds of any cell: `prior_log_odds()` plus the highest evidence (cells of

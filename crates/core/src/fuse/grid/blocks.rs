@@ -65,7 +65,12 @@ impl Layout {
     /// Whether every block is stored in block order (block b in slot b + 1), as
     /// [`Layout::full`] lays them out.
     pub(crate) fn is_full(&self) -> bool {
-        self.sorted && self.slots() == self.table.len() + 1
+        self.sorted && self.stores_every_block()
+    }
+
+    /// Whether every block of the grid has a slot (in any order).
+    pub(crate) fn stores_every_block(&self) -> bool {
+        self.slots() == self.table.len() + 1
     }
 
     /// Index of block (bi, bj, bk).

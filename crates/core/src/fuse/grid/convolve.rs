@@ -85,7 +85,7 @@ pub(crate) fn convolve<T: Sample>(
     blocks: &mut Vec<u32>,
     out: &mut Vec<T>,
 ) -> Result<(), GridError> {
-    if layout.slots() - 1 == layout.table.len() {
+    if layout.stores_every_block() {
         // Every block stored (a dense grid): every block is computed.
         *blocks = layout
             .in_block_order()

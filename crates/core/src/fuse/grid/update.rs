@@ -29,15 +29,7 @@ impl Grid {
         ev: &TileEvidence,
         max_depth_m: f64,
     ) -> Result<usize, GridError> {
-        let proj = Projector::new(
-            &self.spec,
-            camera_from_odom,
-            camera,
-            ev,
-            max_depth_m,
-            self.budget.max_bytes,
-        )?;
-        self.store(&proj.new_blocks(&self.layout))?;
+        let proj = self.project(camera_from_odom, camera, ev, max_depth_m)?;
         let clamp = self.evidence_clamp();
         Ok(
             proj.apply(&self.layout, &mut self.evidence, &mut self.views, |e, d| {
@@ -61,6 +53,20 @@ impl Grid {
         max_depth_m: f64,
         out: &mut Vec<f32>,
     ) -> Result<usize, GridError> {
+        let proj = self.project(camera_from_odom, camera, ev, max_depth_m)?;
+        out.clear();
+        out.resize(self.evidence.len(), 0.0);
+        Ok(proj.apply(&self.layout, out, &mut self.views, |o, d| *o = d))
+    }
+
+    /// The frame's projector, with the blocks its update reaches stored.
+    fn project<'a>(
+        &mut self,
+        camera_from_odom: &Iso3,
+        camera: &Camera,
+        ev: &'a TileEvidence,
+        max_depth_m: f64,
+    ) -> Result<Projector<'a>, GridError> {
         let proj = Projector::new(
             &self.spec,
             camera_from_odom,
@@ -70,9 +76,7 @@ impl Grid {
             self.budget.max_bytes,
         )?;
         self.store(&proj.new_blocks(&self.layout))?;
-        out.clear();
-        out.resize(self.evidence.len(), 0.0);
-        Ok(proj.apply(&self.layout, out, &mut self.views, |o, d| *o = d))
+        Ok(proj)
     }
 
     /// Adds per-cell evidence (log likelihood ratios, laid out like the grid), then applies
