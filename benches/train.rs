@@ -81,6 +81,7 @@ fn synthetic() -> LoadedSession {
         path: "synthetic".into(),
         sha256: String::new(),
         frames,
+        label_objects: ["object".to_owned()].into(),
     }
 }
 

@@ -54,6 +54,13 @@ pub fn run(reader: &SessionReader, args: &Args) -> anyhow::Result<()> {
                 .ok()
                 .and_then(|m| m.metadata.object)
         });
+        if let Some(o) = object.as_ref().filter(|o| !rects.contains_key(*o)) {
+            let names = rects.keys().cloned().collect();
+            anyhow::bail!(
+                "{session}: no label rectangle names object {o:?} (the labels name: {}); pass --object NAME",
+                super::names_or_none(&names)
+            );
+        }
         let candidates: Vec<[f64; 3]> = report.objects.iter().map(|o| o.centroid_m).collect();
         let auc = tile_auc(&report, args, object.as_deref());
         for (name, frames) in &rects {

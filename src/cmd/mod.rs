@@ -90,3 +90,12 @@ pub fn main(cli: Cli) -> std::process::ExitCode {
         }
     }
 }
+
+/// Object names for a message: `apple, banana`, or `none`.
+pub(crate) fn names_or_none(names: &std::collections::BTreeSet<String>) -> String {
+    if names.is_empty() {
+        "none".to_owned()
+    } else {
+        names.iter().cloned().collect::<Vec<_>>().join(", ")
+    }
+}

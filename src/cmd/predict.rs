@@ -83,7 +83,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         args.out.display()
     );
     let (Some(m), Some(tile)) = (&pred.labelled, &pred.tile_labelled) else {
-        println!("no labelled frames: no tile AUC");
+        match object
+            .as_deref()
+            .filter(|o| !session.label_objects.contains(*o))
+        {
+            Some(o) => println!(
+                "no label names object {o:?} (the session's labels name: {}): no tile AUC",
+                super::names_or_none(&session.label_objects)
+            ),
+            None => println!("no labelled frames: no tile AUC"),
+        }
         return Ok(());
     };
     let auc = |m: &objloc_core::learn::tree::Metrics| {

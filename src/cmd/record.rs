@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use anyhow::Context;
 use indicatif::ProgressBar;
 
-use objloc_core::io::import::PoseFile;
+use objloc_core::io::import::{Matching, PoseFile};
 use objloc_core::sim::{Kind, SimOptions, SpeedNoise};
 use objloc_core::types::lens::Distortion;
 
@@ -77,8 +77,10 @@ struct SimArgs {
         .args(["trajectory", "nerf", "colmap", "llff", "idr"])
 ))]
 struct ImportArgs {
-    /// Directory of images (png, jpeg). TUM: taken in file-name order; COLMAP: the folder the
-    /// model's image names are relative to; LLFF and IDR: one image per pose row, by name.
+    /// Directory of images (png, jpeg). TUM: names that are decimal seconds within the
+    /// trajectory are the images' stamps, else image i (in natural name order: frame_2 before
+    /// frame_10) takes line i; COLMAP: the folder the model's image names are relative to;
+    /// LLFF and IDR: one image per pose row, by name.
     #[arg(long, value_name = "DIR", required_unless_present = "nerf")]
     images: Option<PathBuf>,
     /// TUM RGB-D trajectory: `timestamp tx ty tz qx qy qz qw` per line (camera in world).
@@ -268,12 +270,15 @@ fn run_import(a: ImportArgs) -> anyhow::Result<()> {
         stats.path.display(),
         stats.frames,
         stats.labelled,
-        if stats.timestamps_from_names {
+        if stats.tum_matching == Some(Matching::FileNameStamps) {
             "by file-name timestamps"
         } else {
             "in order"
         }
     );
+    if let Some(Matching::InOrderNotStamps(why)) = &stats.tum_matching {
+        eprintln!("note: {why}");
+    }
     if stats.distorted > 0 {
         eprintln!(
             "{} frames carry lens distortion (CameraInfo d, plumb_bob); the replay rectifies them",

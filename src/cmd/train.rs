@@ -197,6 +197,23 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .map(|p| load_session(p, topics.clone(), args.object.as_deref(), true))
         .collect::<Result<Vec<_>, _>>()
         .context("train: reading sessions")?;
+    if let Some(o) = &args.object
+        && !sessions.iter().any(|s| s.label_objects.contains(o))
+    {
+        let names: std::collections::BTreeSet<String> = sessions
+            .iter()
+            .flat_map(|s| s.label_objects.iter().cloned())
+            .collect();
+        anyhow::bail!(
+            "train: no label in {} names object {o:?}; the labels name: {} (labels imported without an object column are named by `record import --object NAME`, else \"object\")",
+            args.sessions
+                .iter()
+                .map(|p| p.display().to_string())
+                .collect::<Vec<_>>()
+                .join(", "),
+            super::names_or_none(&names)
+        );
+    }
     let t_load = t0.elapsed();
     let t1 = Instant::now();
     stage.set_message("train: tile features");

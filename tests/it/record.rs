@@ -463,6 +463,104 @@ fn import_tum_sequence_with_labels() {
     assert_eq!(odom_x, vec![(100_500_000_000, 1.0), (101_000_000_000, 2.0)]);
     assert_eq!(regions, vec![("cup".to_owned(), 1), ("cup".to_owned(), 0)]);
     assert_eq!(k[0], (30.0, 31.0, 16.0, 12.0, 32));
+    // Training for an object the labels do not name says which they do name.
+    let line = one_line_error(&objloc(
+        &[
+            "train",
+            p(&out),
+            "--object",
+            "mug",
+            "-o",
+            p(&dir.path().join("m.json")),
+        ],
+        &[],
+    ));
+    assert!(
+        line.contains("no label in") && line.contains("names object \"mug\"; the labels name: cup"),
+        "{line}"
+    );
+}
+
+/// Imports `names` (image k red k * 20) against a trajectory of lines at `times` with x = k,
+/// and returns, per frame in the session, (red / 20, the /odom x at its stamp), and stderr.
+fn tum_pairs(names: &[&str], times: &[f64]) -> (Vec<(u8, f64)>, String) {
+    let dir = tempfile::tempdir().unwrap();
+    let named: Vec<(&str, u32, u32, [u8; 3])> = names
+        .iter()
+        .enumerate()
+        .map(|(k, n)| (*n, 8, 8, [(k as u8 + 1) * 20, 0, 0]))
+        .collect();
+    let images = image_dir(dir.path(), &named);
+    let traj = dir.path().join("traj.txt");
+    let lines: String = times
+        .iter()
+        .enumerate()
+        .map(|(k, t)| format!("{t} {} 0 0 0 0 0 1\n", k + 1))
+        .collect();
+    std::fs::write(&traj, lines).unwrap();
+    let out = dir.path().join("t.mcap");
+    let o = objloc(
+        &[
+            "record",
+            "import",
+            "--images",
+            p(&images),
+            "--trajectory",
+            p(&traj),
+            "--camera",
+            "8,8,4,4",
+            "-o",
+            p(&out),
+        ],
+        &[],
+    );
+    ok(&o);
+    let reader = SessionReader::open(&out, Topics::default()).unwrap();
+    let (mut reds, mut odom) = (Vec::new(), std::collections::BTreeMap::new());
+    for m in reader.messages() {
+        match m.unwrap().msg {
+            SessionMsg::Frame(f) => {
+                reds.push((f.stamp_ns, f.decode_rgb8().unwrap().pixel(0, 0)[0] / 20))
+            }
+            SessionMsg::Odom(o) => {
+                odom.insert(o.header.stamp_ns, o.pose.position[0]);
+            }
+            _ => {}
+        }
+    }
+    let pairs = reds.iter().map(|(t, k)| (*k, odom[t])).collect();
+    (pairs, String::from_utf8_lossy(&o.stderr).into_owned())
+}
+
+#[test]
+fn import_tum_pairs_unpadded_names_in_natural_order() {
+    let want: Vec<(u8, f64)> = (1..=12).map(|k| (k as u8, k as f64)).collect();
+    let times: Vec<f64> = (0..12).map(|k| 10.0 + k as f64).collect();
+    // frame_1 ... frame_12 with the lines in frame order: string order paired frame_10 with
+    // the second line.
+    let names: Vec<String> = (1..=12).map(|k| format!("frame_{k}.png")).collect();
+    let names: Vec<&str> = names.iter().map(String::as_str).collect();
+    let (pairs, err) = tum_pairs(&names, &times);
+    assert_eq!(pairs, want);
+    assert!(
+        err.contains("matched in order") && !err.contains("note:"),
+        "{err}"
+    );
+    // Frame numbers as names (1 ... 12) against a trajectory timed 10 ... 21 s: not its
+    // times, so matched in order, and said so.
+    let names: Vec<String> = (1..=12).map(|k| format!("{k}.png")).collect();
+    let names: Vec<&str> = names.iter().map(String::as_str).collect();
+    let (pairs, err) = tum_pairs(&names, &times);
+    assert_eq!(pairs, want);
+    assert!(
+        err.contains("note: the file names are numbers but not the trajectory's times"),
+        "{err}"
+    );
+    // The same names against a trajectory timed 1 ... 12 s: they are its times.
+    let times: Vec<f64> = (1..=12).map(f64::from).collect();
+    let (pairs, err) = tum_pairs(&names, &times);
+    assert_eq!(pairs, want);
+    assert!(err.contains("matched by file-name timestamps"), "{err}");
 }
 
 #[test]

@@ -98,6 +98,9 @@ pub struct LoadedSession {
     pub sha256: String,
     /// Its decoded frames in session order (with `labelled_only`, only those with a label).
     pub frames: Vec<SessionFrame>,
+    /// Every object a label with a rectangle names, whichever `object` was asked for: what
+    /// to tell a user whose `--object` names none of them.
+    pub label_objects: std::collections::BTreeSet<String>,
 }
 
 /// Reads a session's frames and labels. `object`: use only labels naming it (None: all).
@@ -115,10 +118,16 @@ pub fn load_session(
     // frames of a long session are never all in memory at once.
     let mut frames: Vec<(usize, u64, String, i64)> = Vec::new();
     let mut labels: BTreeMap<i64, Vec<RegionOfInterest>> = BTreeMap::new();
+    let mut label_objects = std::collections::BTreeSet::new();
     for (i, meta) in reader.index().iter().enumerate() {
         let Some(m) = reader.decode(meta)? else {
             continue;
         };
+        if let SessionMsg::Label(l) = &m.msg
+            && !l.regions.is_empty()
+        {
+            label_objects.insert(l.object.clone());
+        }
         match m.msg {
             SessionMsg::Frame(f) => frames.push((i, m.log_time_ns, m.topic, f.stamp_ns)),
             // Several labels for one frame (several objects, or a background label next to
@@ -171,6 +180,7 @@ pub fn load_session(
         path: path.to_owned(),
         sha256,
         frames,
+        label_objects,
     })
 }
 

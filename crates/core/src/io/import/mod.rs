@@ -30,7 +30,7 @@ use std::path::{Path, PathBuf};
 use thiserror::Error;
 
 pub use labels::{LabelRow, Labels, labels_from_masks, parse_labels};
-pub use tum::{MAX_EXTRAPOLATION_NS, TrajectoryPose, parse_seconds_ns, parse_trajectory};
+pub use tum::{MAX_EXTRAPOLATION_NS, Matching, TrajectoryPose, parse_seconds_ns, parse_trajectory};
 
 use crate::io::capture::{CaptureError, Intrinsics, PosedImage};
 use crate::io::msgs::pose_from_iso;
@@ -131,8 +131,9 @@ pub struct ImportStats {
     pub frames: usize,
     /// Frames with at least one label message.
     pub labelled: usize,
-    /// Whether the images were stamped by their TUM file names (else in order).
-    pub timestamps_from_names: bool,
+    /// How a TUM import paired images with poses; `None` for the other pose files (their
+    /// images are named in the pose file and stamped in natural file-name order).
+    pub tum_matching: Option<Matching>,
     /// Frames whose intrinsics carry a lens distortion.
     pub distorted: usize,
 }
@@ -165,7 +166,11 @@ fn list_images(dir: &Path) -> Result<Vec<PathBuf>, ImportError> {
             files.push(p);
         }
     }
-    files.sort_by(|a, b| a.file_name().cmp(&b.file_name()));
+    // Natural order (`frame_2` before `frame_10`), as the other importers: a TUM trajectory
+    // matched to images in order pairs line i with the i-th frame a camera wrote, and plain
+    // string order put `frame_10` second (42 of 43 images of an unpadded capture on the
+    // wrong pose, silently).
+    files.sort_by_cached_key(|p| natural_key(&name_of(p)));
     if files.is_empty() {
         return Err(ImportError::File(CaptureError::Invalid {
             path: dir.into(),
@@ -214,8 +219,8 @@ fn capture_frames(mut images: Vec<PosedImage>) -> Vec<Frame> {
         .collect()
 }
 
-/// The frames to write and whether their stamps came from TUM file names.
-fn frames(poses: &PoseFile) -> Result<(Vec<Frame>, bool), ImportError> {
+/// The frames to write and, for a TUM import, how images were matched to poses.
+fn frames(poses: &PoseFile) -> Result<(Vec<Frame>, Option<Matching>), ImportError> {
     use crate::io::capture::{read_colmap, read_idr, read_llff, read_nerf};
     let posed = match poses {
         PoseFile::Tum {
@@ -227,7 +232,8 @@ fn frames(poses: &PoseFile) -> Result<(Vec<Frame>, bool), ImportError> {
             let first = list_images(images)?;
             let size = crate::io::capture::image_size(&first[0])?;
             let intrinsics = tum_intrinsics(trajectory, *camera, *distortion, size)?;
-            return tum::tum_frames(trajectory, images, intrinsics);
+            let (frames, matching) = tum::tum_frames(trajectory, images, intrinsics)?;
+            return Ok((frames, Some(matching)));
         }
         PoseFile::Nerf { transforms } => read_nerf(transforms)?,
         PoseFile::Colmap { model, images } => read_colmap(model, images)?,
@@ -241,7 +247,7 @@ fn frames(poses: &PoseFile) -> Result<(Vec<Frame>, bool), ImportError> {
             crop,
         } => read_idr(cameras, images, *crop)?,
     };
-    Ok((capture_frames(posed), false))
+    Ok((capture_frames(posed), None))
 }
 
 /// The `--camera` intrinsics of a TUM import, refused unless a pinhole camera.
@@ -273,7 +279,7 @@ pub fn import(
     out: &Path,
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<ImportStats, ImportError> {
-    let (frames, timestamps_from_names) = frames(&opts.poses)?;
+    let (frames, tum_matching) = frames(&opts.poses)?;
     check_stamps(&frames)?;
     let labels = read_labels(opts, &frames)?;
     let result = write_session(opts, out, &frames, labels.as_ref(), progress);
@@ -285,7 +291,7 @@ pub fn import(
         path,
         frames: frames.len(),
         labelled,
-        timestamps_from_names,
+        tum_matching,
         distorted: frames
             .iter()
             .filter(|f| !f.intrinsics.distortion.is_zero())

@@ -16,14 +16,26 @@ use crate::types::track::PoseTrack;
 /// An image stamp may lie this far outside the trajectory's time span.
 pub const MAX_EXTRAPOLATION_NS: i64 = crate::types::track::POSE_TOLERANCE_NS;
 
-/// The frames of a TUM import: the images of `images_dir` in file-name order, stamped by
-/// their names when every name is decimal seconds (and posed by interpolation), else
-/// matched to the trajectory's lines in order; and whether the names were stamps.
+/// How a TUM import paired images with trajectory lines.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Matching {
+    /// Every file name is decimal seconds within the trajectory: each image posed at its stamp.
+    FileNameStamps,
+    /// Image i (in natural file-name order: `frame_2` before `frame_10`) took line i.
+    InOrder,
+    /// The names are numbers but do not all fall within the trajectory's time span (frame
+    /// numbers, not times): matched in order as [`Matching::InOrder`], and this says why.
+    InOrderNotStamps(String),
+}
+
+/// The frames of a TUM import: the images of `images_dir`, stamped by their names when every
+/// name is decimal seconds within the trajectory (posed by interpolation, in stamp order),
+/// else matched to the trajectory's lines in natural file-name order; and how.
 pub(super) fn tum_frames(
     trajectory: &Path,
     images_dir: &Path,
     intrinsics: Intrinsics,
-) -> Result<(Vec<Frame>, bool), ImportError> {
+) -> Result<(Vec<Frame>, Matching), ImportError> {
     let text = std::fs::read_to_string(trajectory).map_err(|source| {
         ImportError::File(CaptureError::Io {
             path: trajectory.into(),
@@ -32,8 +44,8 @@ pub(super) fn tum_frames(
     })?;
     let traj = parse_trajectory(trajectory, &text)?;
     let images = list_images(images_dir)?;
-    let (posed, from_names) = pose_images(trajectory, images_dir, &traj, &images)?;
-    let frames = images
+    let (posed, matching) = pose_images(trajectory, images_dir, &traj, &images)?;
+    let mut frames: Vec<Frame> = images
         .into_iter()
         .zip(posed)
         .map(|(path, (stamp_ns, world_from_camera))| Frame {
@@ -43,7 +55,9 @@ pub(super) fn tum_frames(
             intrinsics,
         })
         .collect();
-    Ok((frames, from_names))
+    // Names that are stamps go in time order, however they are spelt (`0.5` and `1.25`).
+    frames.sort_by_key(|f| f.stamp_ns);
+    Ok((frames, matching))
 }
 
 /// One trajectory line: camera pose in the world frame at a stamp.
@@ -155,14 +169,17 @@ fn pose_at(traj: &[TrajectoryPose], stamp_ns: i64) -> Result<Iso3, String> {
         })
 }
 
-/// (stamp, pose) per image, and whether the stamps came from the file names (else image i
-/// took trajectory line i).
+/// (stamp, pose) per image (in the order of `images`), and how they were matched. Numeric
+/// names are stamps when every one falls within the trajectory; when one does not and there
+/// are as many images as lines, they are frame numbers (`1.jpg` ... `43.jpg` against a
+/// trajectory timed 0 ... 42) and the images are matched in order, saying so; with a
+/// different count the stamp's own error stands.
 fn pose_images(
     trajectory: &Path,
     images_dir: &Path,
     traj: &[TrajectoryPose],
     images: &[PathBuf],
-) -> Result<(Vec<(i64, Iso3)>, bool), ImportError> {
+) -> Result<(Vec<(i64, Iso3)>, Matching), ImportError> {
     let stems: Option<Vec<i64>> = images
         .iter()
         .map(|p| {
@@ -171,27 +188,46 @@ fn pose_images(
                 .and_then(parse_seconds_ns)
         })
         .collect();
-    let Some(stamps) = stems else {
-        if images.len() != traj.len() {
-            return Err(ImportError::File(CaptureError::Invalid {
-                path: trajectory.into(),
-                what: format!(
-                    "{} poses for {} images in {} (file names are not timestamps, so images are matched to lines in order)",
-                    traj.len(),
-                    images.len(),
-                    images_dir.display()
-                ),
-            }));
+    let mut matching = Matching::InOrder;
+    if let Some(stamps) = stems {
+        match posed_by_stamps(traj, images, &stamps) {
+            Ok(posed) => return Ok((posed, Matching::FileNameStamps)),
+            Err(e) if images.len() != traj.len() => return Err(e),
+            Err(e) => {
+                matching = Matching::InOrderNotStamps(format!(
+                    "the file names are numbers but not the trajectory's times ({e}): images matched to its lines in order"
+                ));
+            }
         }
-        let posed = traj
-            .iter()
-            .map(|t| (t.stamp_ns, t.world_from_camera))
-            .collect();
-        return Ok((posed, false));
-    };
-    let posed = images
+    }
+    if images.len() != traj.len() {
+        return Err(ImportError::File(CaptureError::Invalid {
+            path: trajectory.into(),
+            what: format!(
+                "{} poses for {} images in {} (file names are not timestamps, so images are matched to lines in order)",
+                traj.len(),
+                images.len(),
+                images_dir.display()
+            ),
+        }));
+    }
+    let posed = traj
         .iter()
-        .zip(&stamps)
+        .map(|t| (t.stamp_ns, t.world_from_camera))
+        .collect();
+    Ok((posed, matching))
+}
+
+/// Each image posed at the stamp its name gives; the first that falls outside the
+/// trajectory is the error.
+fn posed_by_stamps(
+    traj: &[TrajectoryPose],
+    images: &[PathBuf],
+    stamps: &[i64],
+) -> Result<Vec<(i64, Iso3)>, ImportError> {
+    images
+        .iter()
+        .zip(stamps)
         .map(|(p, s)| {
             pose_at(traj, *s).map(|pose| (*s, pose)).map_err(|what| {
                 ImportError::File(CaptureError::Invalid {
@@ -200,8 +236,7 @@ fn pose_images(
                 })
             })
         })
-        .collect::<Result<_, _>>()?;
-    Ok((posed, true))
+        .collect()
 }
 
 #[cfg(test)]
