@@ -279,6 +279,9 @@ fn run_import(a: ImportArgs) -> anyhow::Result<()> {
     if let Some(Matching::InOrderNotStamps(why)) = &stats.tum_matching {
         eprintln!("note: {why}");
     }
+    if let Some(note) = &stats.pose_note {
+        eprintln!("note: {note}");
+    }
     if stats.distorted > 0 {
         eprintln!(
             "{} frames carry lens distortion (CameraInfo d, plumb_bob); the replay rectifies them",

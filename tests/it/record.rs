@@ -564,6 +564,52 @@ fn import_tum_pairs_unpadded_names_in_natural_order() {
 }
 
 #[test]
+fn import_notes_poses_that_look_like_opengl_axes() {
+    // Four cameras on a circle of 2 m whose +z points away from the centre: -z (OpenGL's
+    // viewing direction) meets at the centre, +z nowhere in front.
+    let dir = tempfile::tempdir().unwrap();
+    let images = image_dir(
+        dir.path(),
+        &[
+            ("0.png", 8, 8, [10, 0, 0]),
+            ("1.png", 8, 8, [20, 0, 0]),
+            ("2.png", 8, 8, [30, 0, 0]),
+            ("3.png", 8, 8, [40, 0, 0]),
+        ],
+    );
+    let s = std::f64::consts::FRAC_1_SQRT_2;
+    let lines: String = (0..4)
+        .map(|k| {
+            let a = f64::from(k) * std::f64::consts::FRAC_PI_2;
+            // 90 degrees about z x u takes z to u = (cos a, sin a, 0).
+            let (x, y) = (2.0 * a.cos(), 2.0 * a.sin());
+            format!("{k} {x} {y} 0 {} {} 0 {s}\n", -a.sin() * s, a.cos() * s)
+        })
+        .collect();
+    let traj = dir.path().join("traj.txt");
+    std::fs::write(&traj, lines).unwrap();
+    let out = dir.path().join("gl.mcap");
+    let args = [
+        "record",
+        "import",
+        "--images",
+        p(&images),
+        "--trajectory",
+        p(&traj),
+    ];
+    let o = objloc(
+        &[&args[..], &["--camera", "8,8,4,4", "-o", p(&out)]].concat(),
+        &[],
+    );
+    ok(&o);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("note: the cameras' optical axes (+z) do not meet in front of them"),
+        "{err}"
+    );
+}
+
+#[test]
 fn import_errors_name_file_and_line() {
     let dir = tempfile::tempdir().unwrap();
     let images = image_dir(

@@ -9,7 +9,7 @@
 //! user made (`fit` false) is never overridden; every override is stated as one line.
 
 use crate::types::geometry::Iso3;
-use nalgebra::{Matrix3, Vector3};
+use nalgebra::Vector3;
 
 use super::*;
 
@@ -130,29 +130,7 @@ fn camera_poses(data: &SessionData) -> Vec<Iso3> {
         .collect()
 }
 
-/// The point nearest to every optical axis in the least-squares sense; `None` when the axes
-/// are (nearly) parallel or the point lies behind more than half of the cameras.
-pub fn axes_convergence(cameras: &[Iso3]) -> Option<Vector3<f64>> {
-    let mut a = Matrix3::zeros();
-    let mut b = Vector3::zeros();
-    for c in cameras {
-        let d = c.rotation * Vector3::z();
-        let m = Matrix3::identity() - d * d.transpose();
-        a += m;
-        b += m * c.translation.vector;
-    }
-    let eig = a.symmetric_eigen().eigenvalues;
-    // Parallel axes leave one direction unconstrained: its eigenvalue is ~0.
-    if cameras.len() < 2 || eig.min() < 1e-3 * eig.max() {
-        return None;
-    }
-    let p = a.try_inverse()? * b;
-    let in_front = cameras
-        .iter()
-        .filter(|c| (c.rotation * Vector3::z()).dot(&(p - c.translation.vector)) > 0.0)
-        .count();
-    (2 * in_front > cameras.len()).then_some(p)
-}
+pub use crate::types::geometry::axes_convergence;
 
 /// The region the cameras look at: the box around what each camera's image covers at the
 /// depth of the axes' convergence point (its four corners' rays there), each side at least

@@ -136,6 +136,9 @@ pub struct ImportStats {
     pub tum_matching: Option<Matching>,
     /// Frames whose intrinsics carry a lens distortion.
     pub distorted: usize,
+    /// Something about the poses a user should check, in words (the imported session is
+    /// written all the same).
+    pub pose_note: Option<String>,
 }
 
 /// One image to write: its file, stamp, camera pose and intrinsics.
@@ -296,7 +299,29 @@ pub fn import(
             .iter()
             .filter(|f| !f.intrinsics.distortion.is_zero())
             .count(),
+        pose_note: axes_note(&frames),
     })
+}
+
+/// A note when the poses look like OpenGL camera axes (y up, z back) given where OpenCV's
+/// (x right, y down, z forward) were due: the cameras' +z axes meet behind them but their -z
+/// axes meet in front. A capture around an object converges one way or the other; a camera
+/// driving forward converges neither way and gets no note.
+fn axes_note(frames: &[Frame]) -> Option<String> {
+    use crate::types::geometry::axes_convergence;
+    let poses: Vec<Iso3> = frames.iter().map(|f| f.world_from_camera).collect();
+    let flip = nalgebra::UnitQuaternion::from_axis_angle(
+        &nalgebra::Vector3::x_axis(),
+        std::f64::consts::PI,
+    );
+    let flipped: Vec<Iso3> = poses.iter().map(|p| p * flip).collect();
+    (poses.len() >= 3 && axes_convergence(&poses).is_none() && axes_convergence(&flipped).is_some())
+        .then(|| {
+            "the cameras' optical axes (+z) do not meet in front of them, but their -z axes do: \
+             are the poses in OpenGL camera axes (y up, z back)? A TUM trajectory and COLMAP \
+             hold OpenCV axes (x right, y down, z forward)"
+                .to_owned()
+        })
 }
 
 /// The labels from the CSV or the masks (with the file they came from), checked to name
