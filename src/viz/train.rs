@@ -13,7 +13,6 @@ use super::fuse::{depth_image, log_frame_and_probs};
 use super::{TIMELINE_FRAME, TIMELINE_LOG_TIME, VizError, log_err};
 use objloc_core::learn::dataset::LoadedSession;
 use objloc_core::learn::model::Model;
-use objloc_core::out::view::upscale;
 use objloc_core::out::view::viridis;
 
 /// Node labels of the tree, index order: "bin 12 (hue ...) > 0.0312?" at inner nodes,
@@ -101,10 +100,10 @@ pub fn log_training_frames(
             index += 1;
             log_frame_and_probs(rec, "train/frame", &f.image, &model.predict(&f.image))?;
             if let Some(region) = &model.region {
-                let p = upscale(&region.predict(&f.image), f.image.width, f.image.height);
+                let p = region.predict(&f.image);
                 rec.log(
                     "train/frame/region_probability",
-                    &depth_image(p, f.image.width, f.image.height),
+                    &depth_image(&p, f.image.width, f.image.height),
                 )
                 .map_err(log_err)?;
             }
