@@ -68,13 +68,38 @@ pub fn covered(stamps: &[i64], stamp_ns: i64) -> bool {
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct PoseTrack {
     poses: Vec<(i64, Iso3)>,
+    /// Stamps (sorted) at which a [`PoseTrack::sampled_at`] track's source had no pose.
+    missing: Vec<i64>,
 }
 
 impl PoseTrack {
     /// The track of `poses`, sorted by stamp (stable: equal stamps keep their order).
     pub fn new(mut poses: Vec<(i64, Iso3)>) -> Self {
         poses.sort_by_key(|(t, _)| *t);
-        Self { poses }
+        Self {
+            poses,
+            missing: Vec::new(),
+        }
+    }
+
+    /// This track's lookups at `stamps` alone, kept as a track: at each of those stamps
+    /// [`PoseTrack::at`] gives what this track gives, bit for bit (a pose at an exact stamp is
+    /// returned, not interpolated; a stamp this track has no pose for has none); between them
+    /// it interpolates the samples kept. A replay asks odometry only at its frames' and
+    /// commands' stamps, so its tracks need not keep every message: /odom and
+    /// /ground_truth/pose at 50 Hz were 64 bytes a message each for the whole replay.
+    pub fn sampled_at(&self, stamps: &[i64]) -> Self {
+        let mut stamps = stamps.to_vec();
+        stamps.sort_unstable();
+        stamps.dedup();
+        let (mut poses, mut missing) = (Vec::new(), Vec::new());
+        for t in stamps {
+            match self.at(t) {
+                Some(p) => poses.push((t, p)),
+                None => missing.push(t),
+            }
+        }
+        Self { poses, missing }
     }
 
     /// The poses, sorted by stamp.
@@ -91,6 +116,9 @@ impl PoseTrack {
     /// (no pose within [`POSE_TOLERANCE_NS`] on either side) or further than that beyond the
     /// track's ends.
     pub fn at(&self, stamp_ns: i64) -> Option<Iso3> {
+        if self.missing.binary_search(&stamp_ns).is_ok() {
+            return None;
+        }
         self.resolve(bracket(
             |i| self.poses[i].0,
             self.poses.len(),
@@ -143,5 +171,39 @@ mod tests {
         assert!(track.at(-60_000_000).is_none());
         assert!(covered(&[0, 100_000_000], 120_000_000) && !covered(&[0], 60_000_000));
         assert!(PoseTrack::default().at(0).is_none());
+    }
+
+    #[test]
+    fn a_sampled_track_answers_its_stamps_as_the_full_one() {
+        let full = PoseTrack::new(
+            (0..40)
+                .map(|k| {
+                    (
+                        k * 20_000_000,
+                        iso_from_xy_yaw(0.1 * k as f64, 0.0, 0.03 * k as f64),
+                    )
+                })
+                .chain([(2_000_000_000, iso_from_xy_yaw(9.0, 0.0, 0.0))])
+                .collect(),
+        );
+        // Between samples, on a sample, in the 1.2 s gap before the last pose, past the end.
+        let stamps = [
+            333_000_000,
+            400_000_000,
+            1_500_000_000,
+            5_000_000_000,
+            17_000_000,
+        ];
+        let sampled = full.sampled_at(&stamps);
+        for t in stamps {
+            assert_eq!(sampled.at(t), full.at(t), "{t}");
+        }
+        assert!(sampled.at(1_500_000_000).is_none() && full.at(1_500_000_000).is_none());
+        // Interpolated once from the full track, then returned as it was: bit for bit.
+        assert_eq!(
+            sampled.at(333_000_000).map(|p| p.translation.x.to_bits()),
+            full.at(333_000_000).map(|p| p.translation.x.to_bits())
+        );
+        assert_eq!(sampled.poses().len(), 3);
     }
 }

@@ -51,13 +51,15 @@ pub struct SessionData {
     /// The mount when /tf_static holds a single transform that does not name the camera's
     /// frame (older bags): taken to be the mount.
     pub lone_mount: Option<Iso3>,
-    /// (stamp, odom_from_base), sorted by stamp.
+    /// (stamp, odom_from_base) at the frames' and the commands' stamps (what /odom gives
+    /// there, interpolated as [`PoseTrack::at`] does; see [`PoseTrack::sampled_at`]), sorted.
     pub odom: PoseTrack,
     /// (stamp, v m/s, w rad/s), sorted by stamp.
     pub commands: Vec<(i64, f64, f64)>,
     /// The camera frames, in (log time, channel id, sequence) order.
     pub frames: Vec<FrameRef>,
-    /// (stamp, odom_from_base) from /ground_truth/pose, sorted by stamp; empty unless simulated.
+    /// (stamp, odom_from_base) from /ground_truth/pose at the same stamps as `odom`, sorted;
+    /// empty unless simulated.
     pub ground_truth_poses: PoseTrack,
     /// The true object boxes from /ground_truth/objects, when recorded.
     pub ground_truth: Option<GroundTruth>,
@@ -359,6 +361,15 @@ pub fn load_session(reader: &SessionReader) -> Result<SessionData, ReplayError> 
         ));
     }
     c.commands.sort_by_key(|(t, _, _)| *t);
+    // The replay asks the pose tracks only at its frames' stamps and its commands' (where a
+    // motion segment starts): kept there alone, they cost per frame and command, not per
+    // /odom message.
+    let asked: Vec<i64> = c
+        .frames
+        .iter()
+        .map(|f| f.stamp_ns)
+        .chain(c.commands.iter().map(|cmd| cmd.0))
+        .collect();
     Ok(SessionData {
         path,
         camera,
@@ -368,10 +379,10 @@ pub fn load_session(reader: &SessionReader) -> Result<SessionData, ReplayError> 
         tf,
         base_frame_id: c.base_frame_id,
         lone_mount,
-        odom: PoseTrack::new(c.odom),
+        odom: PoseTrack::new(c.odom).sampled_at(&asked),
         commands: c.commands,
         frames: c.frames,
-        ground_truth_poses: PoseTrack::new(c.gt_poses),
+        ground_truth_poses: PoseTrack::new(c.gt_poses).sampled_at(&asked),
         ground_truth: c.ground_truth,
         warnings: c.warnings,
     })
