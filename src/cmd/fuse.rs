@@ -277,10 +277,19 @@ pub fn fuse(
             &options,
             &mut [&mut observer, &mut progress],
         );
-        // The observer holds a handle on the recording: it must go before the stream is
-        // closed.
-        drop(observer);
-        result
+        // The observer's logging thread holds a handle on the recording: it must have logged
+        // everything before the stream is closed. A failed replay drops it (and the stream is
+        // abandoned below); a logging error fails the command.
+        match result {
+            Ok(o) => {
+                if let Err(e) = observer.finish() {
+                    stream.abandon();
+                    return Err(anyhow::Error::new(e).context("streaming the replay to Rerun"));
+                }
+                Ok(o)
+            }
+            Err(e) => Err(e),
+        }
     } else {
         replay(
             &reader,

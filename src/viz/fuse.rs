@@ -6,12 +6,14 @@
 //! randomness, cells and tiles visited in index order), stamped on the `log_time` timeline
 //! with the frame's MCAP log time and on `frame` with its index; session-wide things (camera
 //! mount, intrinsics, ground-truth boxes) are static. Observing never changes the replay.
+//! The replay's thread copies each step (and summarises the grid at snapshots); one logging
+//! thread encodes and logs every message in replay order, at most [`QUEUED_FRAMES`] behind.
 
 use image::ImageEncoder as _;
 use rerun::RecordingStream;
 
 use super::{TIMELINE_FRAME, TIMELINE_LOG_TIME, VizError, log_err};
-use objloc_core::fuse::grid::Grid;
+use objloc_core::fuse::grid::{Grid, GridSpec};
 use objloc_core::fuse::refine::Verdict;
 use objloc_core::fuse::replay::{FrameStep, Observer, ObserverError, SessionData};
 use objloc_core::io::msgs::iso_from_pose;
@@ -19,7 +21,7 @@ use objloc_core::out::view::{
     GridSummary, centroid_error_m, is_snapshot, overlay_rgba_of_tiles, pyramids, summarize_grid,
     upscale, verdict_rgb, viridis,
 };
-use objloc_core::types::geometry::{Iso3, yaw_of};
+use objloc_core::types::geometry::{Camera, Iso3, yaw_of};
 use objloc_core::types::image::Rgb8;
 use objloc_core::types::probs::TileProbs;
 
@@ -70,11 +72,69 @@ const WORLD_FRAME: &str = "tf#/world";
 const SNAPSHOTS: usize = 50;
 /// One line per refined frame: the verdict and its numbers; the rollback, when it happens.
 const VERDICT_LOG: &str = "refinement";
+/// Frames the replay may run ahead of the logging thread: enough to smooth out a snapshot
+/// (a grid summary takes longer to log than a frame), few enough that the queued frames'
+/// images and summaries stay a few MB.
+const QUEUED_FRAMES: usize = 2;
 
-/// Streams a replay to a recording.
+/// Streams a replay to a recording. The replay's thread only copies what a frame shows (and,
+/// at a snapshot, summarises the grid, which changes with the next frame); encoding and
+/// logging run on a thread of their own, so they overlap the replay's next frame instead of
+/// adding to it (the replay's parallel parts leave a core idle between them). That one thread
+/// logs everything, static data included, in replay order, so the recording holds the same
+/// rows whatever the timing.
 pub struct FuseViz {
     rec: RecordingStream,
     options: VizOptions,
+    worker: Option<Worker>,
+}
+
+/// The logging thread and the queue to it.
+struct Worker {
+    queue: std::sync::mpsc::SyncSender<Message>,
+    handle: std::thread::JoinHandle<Result<(), VizError>>,
+}
+
+/// What the replay hands the logging thread.
+enum Message {
+    Start(Box<StartMessage>),
+    Frame(Box<FrameMessage>),
+    Rollback,
+}
+
+/// What is static in the recording.
+struct StartMessage {
+    /// The camera's mount, when it does not move.
+    static_mount: Option<Iso3>,
+    /// Whether the session has a ground-truth track.
+    truth_track: bool,
+    spec: GridSpec,
+    truth_boxes: Option<rerun::Boxes3D>,
+}
+
+/// One frame, owned: the step, and what the logger cannot compute without the session or
+/// the grid as they were at this frame.
+struct FrameMessage {
+    step: FrameStep,
+    snapshot: Option<Snapshot>,
+    centroid_error_m: Option<f64>,
+}
+
+/// What grows with the replay, at a snapshot frame.
+struct Snapshot {
+    grid: GridSummary,
+    spec: GridSpec,
+    odometry_track: Vec<[f32; 3]>,
+    truth_track: Option<Vec<[f32; 3]>>,
+}
+
+/// The logging side: the recording and what it has logged so far.
+struct Logger {
+    rec: RecordingStream,
+    options: VizOptions,
+    camera: Camera,
+    /// The mount moves (a pan-tilt head, /tf): logged with each frame.
+    dynamic_mount: bool,
     /// Refined robot positions of the frames so far (empty unless refining).
     refined_track: Vec<[f32; 3]>,
     /// The colour of each refined position's verdict.
@@ -89,11 +149,51 @@ impl FuseViz {
         Self {
             rec,
             options,
-            refined_track: Vec::new(),
-            refined_colors: Vec::new(),
-            first_position: None,
+            worker: None,
         }
     }
+
+    /// Waits for the logging thread to log every frame handed to it; its error, if it had
+    /// one. Call before the stream is finished.
+    pub fn finish(mut self) -> Result<(), VizError> {
+        match self.worker.take() {
+            Some(w) => join(w),
+            None => Ok(()),
+        }
+    }
+
+    /// Hands `message` to the logging thread; the thread's error when it has stopped.
+    fn send(&mut self, message: Message) -> Result<(), VizError> {
+        let Some(w) = &self.worker else {
+            return Err(VizError::Log("the logging thread is not running".into()));
+        };
+        if w.queue.send(message).is_ok() {
+            return Ok(());
+        }
+        // The thread only stops early on an error: report it.
+        match self.worker.take().map(join) {
+            Some(Err(e)) => Err(e),
+            _ => Err(VizError::Log("the logging thread stopped".into())),
+        }
+    }
+}
+
+impl Drop for FuseViz {
+    /// A replay that failed drops its observer: the thread is stopped before the stream is
+    /// abandoned (its error, if any, is the failed replay's consequence, not news).
+    fn drop(&mut self) {
+        if let Some(w) = self.worker.take() {
+            let _ = join(w);
+        }
+    }
+}
+
+/// Closes the queue and waits for the thread to drain it.
+fn join(w: Worker) -> Result<(), VizError> {
+    drop(w.queue);
+    w.handle
+        .join()
+        .unwrap_or_else(|_| Err(VizError::Log("the logging thread panicked".into())))
 }
 
 fn translation_rotation(iso: &Iso3) -> ([f32; 3], rerun::Quaternion) {
@@ -263,28 +363,71 @@ fn in_world_frame(rec: &RecordingStream, entity: &str) -> Result<(), VizError> {
 }
 
 impl FuseViz {
-    fn start(&mut self, data: &SessionData, grid: &Grid) -> Result<(), VizError> {
+    /// What is static, as the logging thread logs it first.
+    fn start_message(data: &SessionData, grid: &Grid) -> StartMessage {
+        // A mount that moves (a pan-tilt head, /tf) is logged with each frame instead.
+        let static_mount = if data.tf.is_dynamic() {
+            None
+        } else {
+            data.frames
+                .first()
+                .and_then(|f| data.mount_at(f.stamp_ns).ok())
+        };
+        StartMessage {
+            static_mount,
+            truth_track: !data.ground_truth_poses.is_empty(),
+            spec: grid.spec,
+            truth_boxes: truth_boxes(data),
+        }
+    }
+
+    /// The frame as the logging thread needs it: a copy of the step; at a snapshot, the grid
+    /// summarised and the tracks so far.
+    fn message(&self, data: &SessionData, step: &FrameStep, grid: &Grid) -> FrameMessage {
+        let snapshot = is_snapshot(step.index, step.frames, SNAPSHOTS).then(|| {
+            let stamp = step.frame.stamp_ns;
+            let o = &self.options;
+            Snapshot {
+                grid: summarize_grid(grid, o.grid_min_posterior, o.grid_min_views),
+                spec: grid.spec,
+                odometry_track: track_until(data.odom.poses(), stamp),
+                truth_track: (!data.ground_truth_poses.is_empty())
+                    .then(|| track_until(data.ground_truth_poses.poses(), stamp)),
+            }
+        });
+        FrameMessage {
+            step: step.clone(),
+            snapshot,
+            centroid_error_m: centroid_error_m(&step.objects, data),
+        }
+    }
+}
+
+impl Logger {
+    fn handle(&mut self, message: Message) -> Result<(), VizError> {
+        match message {
+            Message::Start(m) => self.start(&m),
+            Message::Frame(m) => self.frame(&m),
+            Message::Rollback => self.rollback(),
+        }
+    }
+
+    fn start(&self, m: &StartMessage) -> Result<(), VizError> {
         let rec = &self.rec;
         rec.log_static("world", &rerun::ViewCoordinates::RIGHT_HAND_Z_UP())
             .map_err(log_err)?;
-        // A mount that moves (a pan-tilt head, /tf) is logged with each frame instead.
-        if !data.tf.is_dynamic()
-            && let Some(mount) = data
-                .frames
-                .first()
-                .and_then(|f| data.mount_at(f.stamp_ns).ok())
-        {
-            rec.log_static("world/robot/camera", &transform(&mount))
+        if let Some(mount) = &m.static_mount {
+            rec.log_static("world/robot/camera", &transform(mount))
                 .map_err(log_err)?;
         }
         // The trajectories live beside the robot they trace (`world/robot/...`) but are in
         // world coordinates: each declares the `world` entity's frame as its own, so the
         // robot's moving transform does not carry them along.
-        let truth = (!data.ground_truth_poses.is_empty()).then_some(TRUTH_TRACK);
+        let truth = m.truth_track.then_some(TRUTH_TRACK);
         for track in std::iter::once(ODOMETRY_TRACK).chain(truth) {
             in_world_frame(rec, track)?;
         }
-        let c = &data.camera;
+        let c = &self.camera;
         rec.log_static(
             "world/robot/camera",
             &rerun::Pinhole::from_focal_length_and_resolution(
@@ -295,8 +438,8 @@ impl FuseViz {
             .with_image_plane_distance(0.5),
         )
         .map_err(log_err)?;
-        let lo = grid.spec.origin_m;
-        let hi = grid.spec.max_m();
+        let lo = m.spec.origin_m;
+        let hi = m.spec.max_m();
         rec.log_static(
             "world/grid/bounds",
             &rerun::Boxes3D::from_mins_and_sizes(
@@ -310,14 +453,14 @@ impl FuseViz {
             .with_colors([rerun::Color::from_rgb(120, 120, 120)]),
         )
         .map_err(log_err)?;
-        if let Some(b) = truth_boxes(data) {
-            rec.log_static("world/objects/truth", &b).map_err(log_err)?;
+        if let Some(b) = &m.truth_boxes {
+            rec.log_static("world/objects/truth", b).map_err(log_err)?;
         }
         Ok(())
     }
 
-    fn frame(&mut self, data: &SessionData, step: &FrameStep, grid: &Grid) -> Result<(), VizError> {
-        let rec = &self.rec;
+    fn frame(&mut self, m: &FrameMessage) -> Result<(), VizError> {
+        let (rec, step) = (&self.rec, &m.step);
         rec.set_time(
             TIMELINE_LOG_TIME,
             rerun::TimeCell::from_timestamp_nanos_since_epoch(
@@ -325,48 +468,49 @@ impl FuseViz {
             ),
         );
         rec.set_time_sequence(TIMELINE_FRAME, step.index as i64);
-        let snapshot = is_snapshot(step.index, step.frames, SNAPSHOTS);
-        self.tracks(data, step, snapshot)?;
-        self.refinement(step, snapshot)?;
+        self.tracks(step, m.snapshot.as_ref())?;
+        self.refinement(step, m.snapshot.is_some())?;
         log_frame_and_probs(&self.rec, "world/robot/camera", &step.image, &step.probs)?;
-        self.pyramids(data, step)?;
-        if snapshot {
-            let s = self.grid(grid)?;
-            scalar(&self.rec, "plots/mean_entropy_bits", s.mean_entropy_bits)?;
+        self.pyramids(step)?;
+        if let Some(s) = &m.snapshot {
+            self.grid(&s.grid, &s.spec)?;
+            scalar(
+                &self.rec,
+                "plots/mean_entropy_bits",
+                s.grid.mean_entropy_bits,
+            )?;
         }
-        self.objects(data, step)
+        self.objects(step, m.centroid_error_m)
     }
 
     /// The robot's pose and the /odom and true tracks up to the frame.
-    fn tracks(&self, data: &SessionData, step: &FrameStep, snapshot: bool) -> Result<(), VizError> {
+    fn tracks(&self, step: &FrameStep, snapshot: Option<&Snapshot>) -> Result<(), VizError> {
         let rec = &self.rec;
         rec.log("world/robot", &transform(&step.odom_from_base))
             .map_err(log_err)?;
-        if data.tf.is_dynamic() {
+        if self.dynamic_mount {
             let mount = step.odom_from_base.inverse() * step.odom_from_camera;
             rec.log("world/robot/camera", &transform(&mount))
                 .map_err(log_err)?;
         }
-        if !snapshot {
+        let Some(snapshot) = snapshot else {
             return Ok(());
-        }
-        let stamp = step.frame.stamp_ns;
+        };
         rec.log(
             ODOMETRY_TRACK,
-            &rerun::LineStrips3D::new([track_until(data.odom.poses(), stamp)]).with_colors([
+            &rerun::LineStrips3D::new([snapshot.odometry_track.clone()]).with_colors([
                 rerun::Color::from_rgb(ODOM_RGB[0], ODOM_RGB[1], ODOM_RGB[2]),
             ]),
         )
         .map_err(log_err)?;
-        if !data.ground_truth_poses.is_empty() {
+        if let Some(truth) = &snapshot.truth_track {
             rec.log(
                 TRUTH_TRACK,
-                &rerun::LineStrips3D::new([track_until(data.ground_truth_poses.poses(), stamp)])
-                    .with_colors([rerun::Color::from_rgb(
-                        TRUTH_RGB[0],
-                        TRUTH_RGB[1],
-                        TRUTH_RGB[2],
-                    )]),
+                &rerun::LineStrips3D::new([truth.clone()]).with_colors([rerun::Color::from_rgb(
+                    TRUTH_RGB[0],
+                    TRUTH_RGB[1],
+                    TRUTH_RGB[2],
+                )]),
             )
             .map_err(log_err)?;
         }
@@ -457,10 +601,10 @@ impl FuseViz {
     }
 
     /// The pyramids of the frame's confident tiles.
-    fn pyramids(&self, data: &SessionData, step: &FrameStep) -> Result<(), VizError> {
+    fn pyramids(&self, step: &FrameStep) -> Result<(), VizError> {
         let (rec, o) = (&self.rec, &self.options);
         let strips = pyramids(
-            &data.camera,
+            &self.camera,
             &step.odom_from_camera,
             &step.probs,
             o.pyramid_min_p,
@@ -485,11 +629,10 @@ impl FuseViz {
     }
 
     /// The belief's shown cells and its three projections; returns the summary.
-    fn grid(&self, grid: &Grid) -> Result<GridSummary, VizError> {
+    fn grid(&self, s: &GridSummary, spec: &GridSpec) -> Result<(), VizError> {
         let (rec, o) = (&self.rec, &self.options);
-        let s = summarize_grid(grid, o.grid_min_posterior, o.grid_min_views);
-        let v = grid.spec.voxel_size_m as f32;
-        let origin = grid.spec.origin_m;
+        let v = spec.voxel_size_m as f32;
+        let origin = spec.origin_m;
         let (idx, vals): (Vec<[i32; 3]>, Vec<f32>) = s.cells.iter().copied().unzip();
         rec.log(
             "world/grid",
@@ -507,12 +650,11 @@ impl FuseViz {
             projection(rec, "projections/y", &s.along_y, nx, nz)?;
             projection(rec, "projections/z", &s.along_z, nx, ny)?;
         }
-
-        Ok(s)
+        Ok(())
     }
 
     /// The objects found after the frame and the whole-grid plots.
-    fn objects(&self, data: &SessionData, step: &FrameStep) -> Result<(), VizError> {
+    fn objects(&self, step: &FrameStep, centroid_error_m: Option<f64>) -> Result<(), VizError> {
         let rec = &self.rec;
         let objects = &step.objects;
         let boxes = rerun::Boxes3D::from_mins_and_sizes(
@@ -553,7 +695,7 @@ impl FuseViz {
             .iter()
             .filter_map(|o| {
                 let q = camera_from_odom * nalgebra::Point3::from(o.centroid_m);
-                data.camera.project(&q).map(|(u, v)| [u as f32, v as f32])
+                self.camera.project(&q).map(|(u, v)| [u as f32, v as f32])
             })
             .collect();
         rec.log(
@@ -571,28 +713,17 @@ impl FuseViz {
         scalar(rec, "plots/max_posterior", step.max_probability)?;
         scalar(rec, "counts/cells_updated", step.cells_updated as f64)?;
         scalar(rec, "counts/objects", objects.len() as f64)?;
-        if let Some(e) = centroid_error_m(objects, data) {
+        if let Some(e) = centroid_error_m {
             scalar(rec, "plots/centroid_error_m", e)?;
         }
         Ok(())
     }
 }
 
-impl Observer for FuseViz {
-    fn on_start(&mut self, data: &SessionData, grid: &Grid) -> Result<(), ObserverError> {
-        Ok(self.start(data, grid)?)
-    }
-    fn on_frame(
-        &mut self,
-        data: &SessionData,
-        step: &FrameStep,
-        grid: &Grid,
-    ) -> Result<(), ObserverError> {
-        Ok(self.frame(data, step, grid)?)
-    }
-    fn on_rollback(&mut self, _data: &SessionData) -> Result<(), ObserverError> {
-        // The frames come again at /odom, logged over the refined pass at the same times; the
-        // refined track restarts with each frame's verdict (rolled-back frames red).
+impl Logger {
+    /// The frames come again at /odom, logged over the refined pass at the same times; the
+    /// refined track restarts with each frame's verdict (rolled-back frames red).
+    fn rollback(&mut self) -> Result<(), VizError> {
         self.refined_track.clear();
         self.refined_colors.clear();
         self.rec
@@ -603,7 +734,45 @@ impl Observer for FuseViz {
                 )
                 .with_level(rerun::TextLogLevel::ERROR),
             )
-            .map_err(log_err)?;
-        Ok(())
+            .map_err(log_err)
+    }
+}
+
+impl Observer for FuseViz {
+    fn on_start(&mut self, data: &SessionData, grid: &Grid) -> Result<(), ObserverError> {
+        let mut logger = Logger {
+            rec: self.rec.clone(),
+            options: self.options.clone(),
+            camera: data.camera,
+            dynamic_mount: data.tf.is_dynamic(),
+            refined_track: Vec::new(),
+            refined_colors: Vec::new(),
+            first_position: None,
+        };
+        let (queue, inbox) = std::sync::mpsc::sync_channel::<Message>(QUEUED_FRAMES);
+        let handle = std::thread::Builder::new()
+            .name("objloc-viz".into())
+            .spawn(move || {
+                for message in inbox {
+                    logger.handle(message)?;
+                }
+                Ok(())
+            })
+            .map_err(|e| VizError::Log(format!("cannot start the logging thread: {e}")))?;
+        self.worker = Some(Worker { queue, handle });
+        let start = Self::start_message(data, grid);
+        Ok(self.send(Message::Start(Box::new(start)))?)
+    }
+    fn on_frame(
+        &mut self,
+        data: &SessionData,
+        step: &FrameStep,
+        grid: &Grid,
+    ) -> Result<(), ObserverError> {
+        let message = self.message(data, step, grid);
+        Ok(self.send(Message::Frame(Box::new(message)))?)
+    }
+    fn on_rollback(&mut self, _data: &SessionData) -> Result<(), ObserverError> {
+        Ok(self.send(Message::Rollback)?)
     }
 }
