@@ -481,24 +481,18 @@ fn import_tum_sequence_with_labels() {
     );
 }
 
-/// Imports `names` (image k red k * 20) against a trajectory of lines at `times` with x = k,
-/// and returns, per frame in the session, (red / 20, the /odom x at its stamp), and stderr.
-fn tum_pairs(names: &[&str], times: &[f64]) -> (Vec<(u8, f64)>, String) {
-    let dir = tempfile::tempdir().unwrap();
+/// Imports 8 x 8 images `names` (image k red (k + 1) * 20) against the TUM trajectory
+/// `lines` with `--camera 8,8,4,4` into `dir`; the session and stderr, the import succeeded.
+fn tum_import(dir: &Path, names: &[&str], lines: &str) -> (PathBuf, String) {
     let named: Vec<(&str, u32, u32, [u8; 3])> = names
         .iter()
         .enumerate()
         .map(|(k, n)| (*n, 8, 8, [(k as u8 + 1) * 20, 0, 0]))
         .collect();
-    let images = image_dir(dir.path(), &named);
-    let traj = dir.path().join("traj.txt");
-    let lines: String = times
-        .iter()
-        .enumerate()
-        .map(|(k, t)| format!("{t} {} 0 0 0 0 0 1\n", k + 1))
-        .collect();
+    let images = image_dir(dir, &named);
+    let traj = dir.join("traj.txt");
     std::fs::write(&traj, lines).unwrap();
-    let out = dir.path().join("t.mcap");
+    let out = dir.join("t.mcap");
     let o = objloc(
         &[
             "record",
@@ -515,6 +509,20 @@ fn tum_pairs(names: &[&str], times: &[f64]) -> (Vec<(u8, f64)>, String) {
         &[],
     );
     ok(&o);
+    (out, String::from_utf8_lossy(&o.stderr).into_owned())
+}
+
+/// Imports `names` (image k red (k + 1) * 20) against a trajectory of lines at `times` with
+/// x = k + 1, and returns, per frame in the session, (red / 20, the /odom x at its stamp),
+/// and stderr.
+fn tum_pairs(names: &[&str], times: &[f64]) -> (Vec<(u8, f64)>, String) {
+    let dir = tempfile::tempdir().unwrap();
+    let lines: String = times
+        .iter()
+        .enumerate()
+        .map(|(k, t)| format!("{t} {} 0 0 0 0 0 1\n", k + 1))
+        .collect();
+    let (out, err) = tum_import(dir.path(), names, &lines);
     let reader = SessionReader::open(&out, Topics::default()).unwrap();
     let (mut reds, mut odom) = (Vec::new(), std::collections::BTreeMap::new());
     for m in reader.messages() {
@@ -529,7 +537,7 @@ fn tum_pairs(names: &[&str], times: &[f64]) -> (Vec<(u8, f64)>, String) {
         }
     }
     let pairs = reds.iter().map(|(t, k)| (*k, odom[t])).collect();
-    (pairs, String::from_utf8_lossy(&o.stderr).into_owned())
+    (pairs, err)
 }
 
 #[test]
@@ -567,16 +575,6 @@ fn import_tum_pairs_unpadded_names_in_natural_order() {
 fn import_notes_poses_that_look_like_opengl_axes() {
     // Four cameras on a circle of 2 m whose +z points away from the centre: -z (OpenGL's
     // viewing direction) meets at the centre, +z nowhere in front.
-    let dir = tempfile::tempdir().unwrap();
-    let images = image_dir(
-        dir.path(),
-        &[
-            ("0.png", 8, 8, [10, 0, 0]),
-            ("1.png", 8, 8, [20, 0, 0]),
-            ("2.png", 8, 8, [30, 0, 0]),
-            ("3.png", 8, 8, [40, 0, 0]),
-        ],
-    );
     let s = std::f64::consts::FRAC_1_SQRT_2;
     let lines: String = (0..4)
         .map(|k| {
@@ -586,23 +584,8 @@ fn import_notes_poses_that_look_like_opengl_axes() {
             format!("{k} {x} {y} 0 {} {} 0 {s}\n", -a.sin() * s, a.cos() * s)
         })
         .collect();
-    let traj = dir.path().join("traj.txt");
-    std::fs::write(&traj, lines).unwrap();
-    let out = dir.path().join("gl.mcap");
-    let args = [
-        "record",
-        "import",
-        "--images",
-        p(&images),
-        "--trajectory",
-        p(&traj),
-    ];
-    let o = objloc(
-        &[&args[..], &["--camera", "8,8,4,4", "-o", p(&out)]].concat(),
-        &[],
-    );
-    ok(&o);
-    let err = String::from_utf8_lossy(&o.stderr);
+    let dir = tempfile::tempdir().unwrap();
+    let (_, err) = tum_import(dir.path(), &["0.png", "1.png", "2.png", "3.png"], &lines);
     assert!(
         err.contains("note: the cameras' optical axes (+z) do not meet in front of them"),
         "{err}"
