@@ -60,6 +60,10 @@ impl Default for FloorParams {
     }
 }
 
+/// [`FloorMap::score_every_above`] compares its running sum with the bound every this many
+/// cells (a comparison per cell costs more than the cells it saves).
+const BOUND_CHECK_CELLS: usize = 16;
+
 /// One frame's floor: cells in `base_link` floor coordinates with their mean colour.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct FloorPatch {
@@ -366,6 +370,20 @@ impl FloorMap {
     /// [`FloorMap::score`] from every `stride`-th cell of the patch, scaled to the whole
     /// patch's count: a cheaper estimate for a coarse search.
     pub fn score_every(&self, patch: &FloorPatch, odom_from_base: &Iso3, stride: usize) -> f64 {
+        self.score_every_above(patch, odom_from_base, stride, f64::NEG_INFINITY)
+    }
+
+    /// [`FloorMap::score_every`] when it is at least `at_least`; otherwise it may stop early
+    /// and return a value below `at_least` that is at least the score. Every cell adds a term
+    /// of at most zero, so the running sum, scaled as the result is, bounds the result from
+    /// above: a pose search skips most of the cells of the candidates that cannot win.
+    pub fn score_every_above(
+        &self,
+        patch: &FloorPatch,
+        odom_from_base: &Iso3,
+        stride: usize,
+        at_least: f64,
+    ) -> f64 {
         let stride = stride.max(1);
         let s0 = self.params.sigma_colour * self.params.sigma_colour;
         let cap = self.params.truncate_sigmas * self.params.truncate_sigmas;
@@ -379,6 +397,8 @@ impl FloorMap {
         let (a, b) = (cos * inv_cell, sin * inv_cell);
         let ox = (t.x - self.origin_m[0]) * inv_cell - 0.5;
         let oy = (t.y - self.origin_m[1]) * inv_cell - 0.5;
+        let count = patch.points_m.len();
+        let bound_factor = count as f64 / count.div_ceil(stride).max(1) as f64 * self.params.weight;
         let mut sum = 0.0;
         let mut used = 0usize;
         for (p, c) in patch.points_m.iter().zip(&patch.colour).step_by(stride) {
@@ -395,10 +415,13 @@ impl FloorMap {
                 r2 = (d2 / (s0 + acc[3] * k)).min(cap);
             }
             sum -= 0.5 * r2;
+            if used.is_multiple_of(BOUND_CHECK_CELLS) && sum * bound_factor < at_least {
+                return sum * bound_factor;
+            }
         }
         if used > 0 {
             // Exactly 1 for stride 1, so the full score is unchanged bit for bit.
-            sum *= patch.points_m.len() as f64 / used as f64;
+            sum *= count as f64 / used as f64;
         }
         sum * self.params.weight
     }
@@ -524,6 +547,46 @@ mod tests {
                 (got - want).abs() <= 1e-9 * want.abs().max(1.0),
                 "{got} vs {want}"
             );
+        }
+    }
+
+    #[test]
+    fn a_bounded_score_is_exact_above_the_bound_and_stops_below_it() {
+        let params = FloorParams::default();
+        let mut map = FloorMap::new([-1.0, -1.0], [1.0, 1.0], params);
+        let points_m: Vec<[f64; 2]> = (0..400)
+            .map(|i| {
+                [
+                    f64::from(i % 20) * 0.06 - 0.6,
+                    f64::from(i / 20) * 0.06 - 0.6,
+                ]
+            })
+            .collect();
+        let colour = points_m
+            .iter()
+            .map(|p| [(p[0] + 1.0) as f32 * 0.4, (p[1] + 1.0) as f32 * 0.3, 0.5])
+            .collect();
+        let patch = FloorPatch {
+            pixels: vec![8; points_m.len()],
+            colour,
+            points_m,
+        };
+        map.add(&patch, &Iso3::identity());
+        let far = iso_from_xy_yaw(0.3, -0.2, 0.6);
+        for stride in [1, 2] {
+            let at_home = map.score_every(&patch, &Iso3::identity(), stride);
+            let away = map.score_every(&patch, &far, stride);
+            assert!(away < at_home - 1.0, "{away} vs {at_home}");
+            // At or above the bound: the same number, bit for bit.
+            let exact = map.score_every_above(&patch, &Iso3::identity(), stride, at_home);
+            assert_eq!(exact.to_bits(), at_home.to_bits());
+            // Certain to fall below it: stopped, below the bound, not below the score.
+            let stopped = map.score_every_above(&patch, &far, stride, at_home);
+            assert!(
+                stopped < at_home && stopped >= away - 1e-9,
+                "{stopped}, {away}"
+            );
+            assert_ne!(stopped.to_bits(), away.to_bits(), "it should stop early");
         }
     }
 

@@ -33,8 +33,9 @@
 //!
 //! The search is a fixed grid in the motion model's whitened coordinates (+-3 sigma in 9 steps
 //! per axis) followed by finer 3x3x3 grids around the best candidate, evaluated in a fixed
-//! order with ties going to the first: deterministic, and sequential (a few landmarks make
-//! each candidate cheap), so the thread count cannot matter.
+//! order with ties going to the first: deterministic, candidates scored in parallel and
+//! chosen in order, so the thread count cannot matter. Candidates certain to lose stop
+//! scoring early (`search`), which changes no choice.
 //!
 //! A correction is applied only when it raises the score by [`MIN_GAIN`]: smaller ones fit
 //! the noise of the detections, and applied they compound into drift.
@@ -50,7 +51,7 @@ pub use landmarks::{
     MIN_RAY_SPREAD, SIGMA_U_PX, SIGMA_V_PX, Sighting, detection_clusters, detections, landmarks,
     sightings,
 };
-pub use search::{MIN_PROMINENCE, MIN_SEPARATION};
+pub use search::{MIN_PROMINENCE, MIN_SEPARATION, SCORED_IN_FULL_NATS};
 
 use landmarks::{associate, image_covariance, project};
 use search::search;
@@ -116,6 +117,11 @@ const FINE_ROUNDS: usize = 4;
 /// (mean 0.036 -> 0.037 m, worst unchanged at 0.081 m; mean ATE 0.058 -> 0.053 m), and the
 /// chair tour's replay 17-25 % faster. Every third cell lost a session (a chair at 0.153 m).
 const COARSE_FLOOR_STRIDE: usize = 2;
+
+/// How far below `at_least` a candidate's floor sum must be certain to fall before it stops:
+/// far more than the rounding of adding the terms in another order, so a stopped candidate
+/// is below `at_least` in exact arithmetic and in the search's.
+const ROUNDING_NATS: f64 = 1e-6;
 
 /// What refinement did with one frame, and why.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
@@ -190,7 +196,9 @@ pub struct Correction {
     #[serde(default)]
     pub total_chi2: f64,
     /// Score of the best candidate separated from the best (coarse search), below the best:
-    /// small means ambiguous. Infinite when there is no other maximum.
+    /// small means ambiguous. Infinite when there is no other maximum within
+    /// [`search::SCORED_IN_FULL_NATS`] of the best (candidates further below are not scored
+    /// in full).
     #[serde(default = "infinite", with = "finite_or_null")]
     pub runner_up_margin: f64,
     /// Distance from the best to that runner-up, in standard deviations of the motion model.
@@ -352,6 +360,31 @@ pub struct Localisation<'a> {
     pub gate: Option<&'a TotalGate>,
 }
 
+/// Each landmark pairing's term of a candidate's score, nats (at least zero; the score
+/// subtracts it): half its capped chi-square in the image, at the candidate camera pose.
+fn anchor_terms(
+    q: &Localisation<'_>,
+    pairs: &[(usize, usize)],
+    infos: &[Matrix2<f64>],
+    camera_from_odom: &Iso3,
+) -> Vec<f64> {
+    pairs
+        .iter()
+        .zip(infos)
+        .map(|(&(i, j), info)| {
+            let r2 = match project(q.camera, camera_from_odom, &q.landmarks[i].position_m) {
+                Some(p) => {
+                    let e = Vector2::new(p[0] - q.clusters[j][0], p[1] - q.clusters[j][1]);
+                    (e.transpose() * info * e)[(0, 0)]
+                }
+                // Behind the camera: as bad as the gate, so the score stays finite.
+                None => (GATE_PX / SIGMA_U_PX).powi(2),
+            };
+            0.5 * r2.min(ANCHOR_CHI2_CAP)
+        })
+        .collect()
+}
+
 /// Finds the correction of `predicted` (odom_from_base) that best explains the frame's
 /// detection `clusters` given the `landmarks` and the motion model's covariance `cov`
 /// (x, y, yaw), and decides whether to apply it: only when it gains [`MIN_GAIN`], no
@@ -389,32 +422,32 @@ pub fn refine(q: &Localisation<'_>) -> Correction {
                 )
             })
             .collect();
-    // z: whitened coordinates; the correction is L z and its log prior -|z|^2 / 2.
-    let score = |z: &Vector3<f64>, stride: usize, floor: Option<(&FloorMap, &FloorPatch)>| {
+    // z: whitened coordinates; the correction is L z and its log prior -|z|^2 / 2. Every
+    // term is at most zero, so the floor's share of `at_least` bounds when its sum may stop
+    // (search: exact at or above `at_least`).
+    let score = |z: &Vector3<f64>,
+                 stride: usize,
+                 floor: Option<(&FloorMap, &FloorPatch)>,
+                 at_least: f64| {
         let d = l * z;
         let odom_from_base = apply(predicted, d.x, d.y, d.z);
         let camera_from_odom = (odom_from_base * base_from_camera).inverse();
+        let anchors = anchor_terms(q, &pairs, &infos, &camera_from_odom);
+        let prior = 0.5 * z.norm_squared();
+        let floor_at_least = at_least + prior + anchors.iter().sum::<f64>() - ROUNDING_NATS;
         let mut log_lik = floor.map_or(0.0, |(map, patch)| {
-            map.score_every(patch, &odom_from_base, stride)
+            map.score_every_above(patch, &odom_from_base, stride, floor_at_least)
         });
-        for (&(i, j), info) in pairs.iter().zip(&infos) {
-            let r2 = match project(camera, &camera_from_odom, &landmarks[i].position_m) {
-                Some(p) => {
-                    let e = Vector2::new(p[0] - clusters[j][0], p[1] - clusters[j][1]);
-                    (e.transpose() * info * e)[(0, 0)]
-                }
-                // Behind the camera: as bad as the gate, so the score stays finite.
-                None => (GATE_PX / SIGMA_U_PX).powi(2),
-            };
-            log_lik -= 0.5 * r2.min(ANCHOR_CHI2_CAP);
+        for a in &anchors {
+            log_lik -= a;
         }
-        log_lik - 0.5 * z.norm_squared()
+        log_lik - prior
     };
     let candidate_of = |z: &Vector3<f64>| {
         let d = l * z;
         apply(predicted, d.x, d.y, d.z)
     };
-    let mut found = search(|z, stride| score(z, stride, floor));
+    let mut found = search(|z, stride, at_least| score(z, stride, floor, at_least));
     // The floor must explain itself: where most of what the camera takes for floor does not
     // fit the map even at the best pose (furniture, walls, a counter in front of the robot),
     // its best pose is not to be trusted; the frame is aligned to the objects alone.
@@ -432,7 +465,7 @@ pub fn refine(q: &Localisation<'_>) -> Correction {
                 ..Correction::ZERO
             };
         }
-        found = search(|z, stride| score(z, stride, None));
+        found = search(|z, stride, at_least| score(z, stride, None, at_least));
     }
     let d = l * found.best_z;
     let candidate = candidate_of(&found.best_z);
@@ -719,6 +752,49 @@ mod tests {
             -((a as f64 - 4.0).powi(2) + (b as f64 - 4.0).powi(2)) - 0.1 * (c % 2) as f64
         });
         assert_eq!(separated_margin(&ridge, 9).0, f64::INFINITY);
+    }
+
+    /// A score that stops early below `at_least` (as the floor's does) finds what scoring
+    /// every candidate in full finds: the same best, gain and ambiguity; a separated peak
+    /// more than [`search::SCORED_IN_FULL_NATS`] below the best is reported as none.
+    #[test]
+    fn a_search_that_stops_hopeless_candidates_early_finds_the_same() {
+        // Two peaks in whitened coordinates; terms of at most zero, summed one at a time.
+        let terms = |z: &Vector3<f64>, second: f64| -> Vec<f64> {
+            let d1 = (z - Vector3::new(0.4, -0.3, 0.2)).norm_squared();
+            let d2 = (z - Vector3::new(-2.0, 1.5, 0.0)).norm_squared();
+            (0..64)
+                .map(|k| -(d1.min(d2 + second)) * (1.0 + f64::from(k % 3)) / 128.0)
+                .collect()
+        };
+        for second in [0.5, 1.2, 40.0] {
+            let full = |z: &Vector3<f64>, _stride: usize, _at_least: f64| {
+                terms(z, second).iter().sum::<f64>() - 0.5 * z.norm_squared()
+            };
+            let stopping = |z: &Vector3<f64>, _stride: usize, at_least: f64| {
+                let prior = 0.5 * z.norm_squared();
+                let mut sum = 0.0;
+                for t in terms(z, second) {
+                    sum += t;
+                    if sum - prior < at_least - 1e-6 {
+                        return sum - prior;
+                    }
+                }
+                sum - prior
+            };
+            let (a, b) = (search(full), search(stopping));
+            assert_eq!(a.best_z, b.best_z);
+            assert_eq!(a.gain.to_bits(), b.gain.to_bits());
+            if a.runner_up_margin < search::SCORED_IN_FULL_NATS {
+                assert_eq!(a.runner_up_margin.to_bits(), b.runner_up_margin.to_bits());
+                assert_eq!(a.runner_up_distance, b.runner_up_distance);
+            } else {
+                assert!(b.runner_up_margin > search::SCORED_IN_FULL_NATS);
+            }
+            if second > 10.0 {
+                assert_eq!(b.runner_up_margin, f64::INFINITY, "{}", a.runner_up_margin);
+            }
+        }
     }
 
     /// Rays that meet exactly score 0; with one frame's ray 0.3 m off the point (24 px at
