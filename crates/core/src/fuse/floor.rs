@@ -86,6 +86,18 @@ impl FloorPatch {
     }
 }
 
+/// Images of more pixels than this are sampled every k-th pixel in u and v (k the square
+/// root of how many times more, rounded down): a floor cell of 7 cm spans hundreds of pixels
+/// of a 1080 x 1920 frame near the robot, and the patch averages them. Up to 640 x 512 every
+/// pixel counts (all our simulated and foreign sessions).
+pub const FLOOR_FULL_PIXELS: u64 = 640 * 512;
+
+/// The pixel step of [`floor_patch`] for an image of `width` x `height`.
+pub fn floor_pixel_step(width: u32, height: u32) -> usize {
+    let ratio = (u64::from(width) * u64::from(height)) as f64 / FLOOR_FULL_PIXELS as f64;
+    ratio.sqrt().floor().max(1.0) as usize
+}
+
 /// Reduces an image to its floor patch (see the module doc), leaving out the pixels for
 /// which `not_floor(u, v)` holds (those the classifier takes for the object).
 pub fn floor_patch(
@@ -101,30 +113,50 @@ pub fn floor_patch(
     let n = (2.0 * reach / cell).ceil() as usize + 1;
     let mut acc = vec![[0.0f64; 6]; n * n];
     let origin = base_from_camera.translation.vector;
-    if origin.z <= 0.0 {
+    if origin.z <= 0.0 || img.width == 0 {
         return FloorPatch::default();
     }
-    for v in 0..img.height {
-        for u in 0..img.width {
-            let ray =
-                base_from_camera.rotation * camera.ray(f64::from(u) + 0.5, f64::from(v) + 0.5);
-            if ray.z >= -1e-6 || not_floor(u, v) {
+    let step = floor_pixel_step(img.width, img.height);
+    // A pixel's ray in base_link is R (x, y, 1) with x, y its normalised image coordinates:
+    // linear in x along a row, so a row costs a product per pixel, not a rotation and a norm.
+    let r = base_from_camera.rotation.to_rotation_matrix().into_inner();
+    let (c0, c1, c2): (Vector3<f64>, Vector3<f64>, Vector3<f64>) =
+        (r.column(0).into(), r.column(1).into(), r.column(2).into());
+    let us: Vec<(u32, f64)> = (0..img.width)
+        .step_by(step)
+        .map(|u| (u, (f64::from(u) + 0.5 - camera.cx) / camera.fx))
+        .collect();
+    let (x_first, x_last) = (us[0].1, us[us.len() - 1].1);
+    for v in (0..img.height).step_by(step) {
+        let y = (f64::from(v) + 0.5 - camera.cy) / camera.fy;
+        let row = c1 * y + c2;
+        // z is linear along the row: no pixel of it looks down when neither end does.
+        if row.z + c0.z * x_first >= 0.0 && row.z + c0.z * x_last >= 0.0 {
+            continue;
+        }
+        for &(u, x) in &us {
+            let ray = row + c0 * x;
+            let norm2 = x * x + y * y + 1.0;
+            // The unit ray's z at most -1e-6 (the pixel looks down), then the floor point
+            // within `reach` of the camera: t |ray| <= reach, with hit = origin + ray t.
+            if ray.z >= 0.0 || ray.z * ray.z <= 1e-12 * norm2 {
                 continue;
             }
             let t = -origin.z / ray.z;
-            if t > reach {
+            if t * t * norm2 > reach * reach || not_floor(u, v) {
                 continue;
             }
-            let hit = origin + ray * t;
-            let ix = ((hit.x + reach) / cell).floor();
-            let iy = ((hit.y + reach) / cell).floor();
-            if ix < 0.0 || iy < 0.0 || ix >= n as f64 || iy >= n as f64 {
+            let (hx, hy) = (origin.x + ray.x * t, origin.y + ray.y * t);
+            let (fx, fy) = ((hx + reach) / cell, (hy + reach) / cell);
+            // Negated so that NaN is rejected; truncation is the floor of these
+            // non-negative values.
+            if !(fx >= 0.0 && fy >= 0.0) || fx as usize >= n || fy as usize >= n {
                 continue;
             }
-            let a = &mut acc[iy as usize * n + ix as usize];
+            let a = &mut acc[fy as usize * n + fx as usize];
             let px = img.pixel(u, v);
-            a[0] += hit.x;
-            a[1] += hit.y;
+            a[0] += hx;
+            a[1] += hy;
             a[2] += f64::from(px[0]) / 255.0;
             a[3] += f64::from(px[1]) / 255.0;
             a[4] += f64::from(px[2]) / 255.0;

@@ -236,11 +236,16 @@ pub(super) fn floor_patch_of(
     let probs = &p.probs;
     let t = probs.tile_px.max(1);
     let min_logit = logit(ctx.prior) + f64::from(DETECTION_DELTA);
+    // Decided once per tile, not per pixel (a logarithm per pixel was a tenth of the patch's
+    // time at 1080 x 1920).
+    let object_tiles: Vec<bool> = probs
+        .p
+        .iter()
+        .map(|&q| logit(f64::from(q)) >= min_logit)
+        .collect();
     let not_floor = |u: u32, v: u32| {
         let (r, c) = ((v / t) as usize, (u / t) as usize);
-        r < probs.rows
-            && c < probs.cols
-            && logit(f64::from(probs.p[r * probs.cols + c])) >= min_logit
+        r < probs.rows && c < probs.cols && object_tiles[r * probs.cols + c]
     };
     Ok(floor_patch(
         &image,
