@@ -14,7 +14,13 @@ Usage: scripts/measure_realdata.py [--markdown OUT.md] [-- extra fuse flags...]
 Skips with a message when ../shared/realdata is absent (REALDATA_DIR overrides it).
 TRAIN_FLAGS in the environment are passed to `objloc train`; `--tag T` names the models and
 reports `OBJECT-T.json` so that several settings can be measured side by side.
+
+`--train-triples N [--seed S]`: how much the result depends on which three frames were
+labelled for training: N seeded random triples of each object's labelled frames (their rows
+of labels.csv) instead of train-labels.csv, one table row per triple and a summary per
+object (a held-out capture's labeller picks frames of their own).
 """
+import random
 import argparse
 import json
 import os
@@ -51,7 +57,25 @@ def session(capture, labels, out):
     run([BIN, "record", "import", *flags, "--labels", labels, "--object", obj, "-o", out])
 
 
-def measure(capture, obj, fuse_flags, tag=""):
+def triple_session(capture, obj, images, tag):
+    """A training session of `images` (their rows of labels.csv, every object's)."""
+    d = os.path.join(OUT, capture)
+    rows = open(os.path.join(LABELS, capture, "labels.csv")).read().splitlines()
+    csv = os.path.join(d, f"train-{obj}-{tag}.csv")
+    with open(csv, "w") as f:
+        f.write("\n".join([rows[0]] + [r for r in rows[1:] if r.split(",")[0] in images]) + "\n")
+    out = os.path.join(d, f"train-{obj}-{tag}.mcap")
+    session(capture, csv, out)
+    return out
+
+
+def labelled_images(capture, obj):
+    rows = open(os.path.join(LABELS, capture, "labels.csv")).read().splitlines()[1:]
+    return sorted({r.split(",")[0] for r in rows
+                   if r.split(",")[-1] == obj and int(r.split(",")[3]) > 0})
+
+
+def measure(capture, obj, fuse_flags, tag="", train_images=None):
     d = os.path.join(OUT, capture)
     os.makedirs(d, exist_ok=True)
     train = os.path.join(d, "train.mcap")
@@ -59,6 +83,8 @@ def measure(capture, obj, fuse_flags, tag=""):
     if not os.path.exists(tour):
         session(capture, os.path.join(LABELS, capture, "train-labels.csv"), train)
         session(capture, os.path.join(LABELS, capture, "labels.csv"), tour)
+    if train_images is not None:
+        train = triple_session(capture, obj, train_images, tag)
     name = f"{obj}-{tag}" if tag else obj
     model = os.path.join(d, f"{name}.json")
     report = os.path.join(d, f"{name}.report.json")
@@ -75,6 +101,7 @@ def measure(capture, obj, fuse_flags, tag=""):
     s = ev[0]["score"] if ev else {}
     rep = json.load(open(report))
     return {
+        "train": " ".join(train_images) if train_images else "train-labels.csv",
         "capture": capture, "object": obj, "objects": len(rep["objects"]),
         "error": s.get("error_fraction"), "inside": (s["frames_inside"], s["frames"]) if s else None,
         "views": (s.get("triangulated") or {}).get("views"), "auc": auc,
@@ -82,19 +109,58 @@ def measure(capture, obj, fuse_flags, tag=""):
     }
 
 
+def meets(r):
+    fi, fn = r["inside"] or (0, 0)
+    return bool(r["objects"] == 1 and r["error"] is not None and r["error"] <= 0.08
+                and fn and fi / fn >= 0.95 and (r["auc"] or 0) >= 0.93)
+
+
 def row(r):
     err = "n/a (never wholly in view)" if r["error"] is None else f"{100 * r['error']:.1f} %"
     fi, fn = r["inside"] or (0, 0)
-    ok = (r["objects"] == 1 and r["error"] is not None and r["error"] <= 0.08
-          and fn and fi / fn >= 0.95 and (r["auc"] or 0) >= 0.93)
     return (f"| {r['capture']} | {r['object']} | {r['objects']} | {err} | {fi} of {fn} | "
-            f"{r['auc']:.3f} | {r['voxel']:.4g} | {'yes' if ok else 'no'} |")
+            f"{r['auc']:.3f} | {r['voxel']:.4g} | {'yes' if meets(r) else 'no'} |")
+
+
+def triples(a):
+    """One row per seeded random triple of labelled frames, then a summary per object."""
+    rng = random.Random(a.seed)
+    lines = ["| capture | object | training frames | objects found | centre error / size | "
+             "in rectangle | tile AUC |", "|---|---|---|---|---|---|---|"]
+    summary = ["| object | triples | exactly one object | error <= 8 % | inside >= 95 % | "
+               "AUC >= 0.93 | all four | error (min / median / max) | AUC (min / median / max) |",
+               "|---|---|---|---|---|---|---|---|---|"]
+    for capture, (_, _, objs) in CAPTURES.items():
+        for obj in objs:
+            images = labelled_images(capture, obj)
+            rs = []
+            for k in range(a.train_triples):
+                pick = sorted(rng.sample(images, 3))
+                r = measure(capture, obj, a.fuse_flags, f"triple{a.seed}-{k}", pick)
+                rs.append(r)
+                err = "n/a" if r["error"] is None else f"{100 * r['error']:.1f} %"
+                fi, fn = r["inside"] or (0, 0)
+                lines.append(f"| {capture} | {obj} | {r['train']} | {r['objects']} | {err} | "
+                             f"{fi} of {fn} | {r['auc']:.3f} |")
+            errs = sorted(r["error"] for r in rs if r["error"] is not None)
+            aucs = sorted(r["auc"] for r in rs if r["auc"] is not None)
+            spread = lambda v, f: (f"{f(v[0])} / {f(v[len(v) // 2])} / {f(v[-1])}" if v else "n/a")
+            inside = [r for r in rs if r["inside"] and r["inside"][1]
+                      and r["inside"][0] / r["inside"][1] >= 0.95]
+            summary.append(
+                f"| {obj} | {len(rs)} | {sum(r['objects'] == 1 for r in rs)} | "
+                f"{sum(e <= 0.08 for e in errs)} | {len(inside)} | {sum(x >= 0.93 for x in aucs)} | "
+                f"{sum(meets(r) for r in rs)} | {spread(errs, lambda e: f'{100 * e:.1f} %')} | "
+                f"{spread(aucs, lambda x: f'{x:.3f}')} |")
+    return "\n".join(lines + [""] + summary)
 
 
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--markdown")
     ap.add_argument("--tag", default="")
+    ap.add_argument("--train-triples", type=int, default=0)
+    ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("fuse_flags", nargs="*")
     a = ap.parse_args()
     if not os.path.isdir(DATA):
@@ -102,6 +168,12 @@ def main():
         return
     if not os.path.exists(BIN):
         subprocess.run(["cargo", "build", "--release"], cwd=ROOT, check=True)
+    if a.train_triples:
+        text = triples(a)
+        print(text)
+        if a.markdown:
+            open(a.markdown, "w").write(text + "\n")
+        return
     lines = ["| capture | object | objects found | centre error / size | in rectangle | "
              "tile AUC | voxel (units) | all targets |", "|---|---|---|---|---|---|---|---|"]
     for capture, (_, _, objs) in CAPTURES.items():
