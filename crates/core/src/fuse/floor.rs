@@ -544,11 +544,9 @@ mod tests {
         sum * p.weight
     }
 
-    #[test]
-    fn the_folded_scorer_agrees_with_point_by_point_lookups() {
-        let params = FloorParams::default();
-        let mut map = FloorMap::new([-1.0, -1.0], [1.0, 1.0], params);
-        // A textured floor: colour varies with position, seen from two poses.
+    /// A textured floor: 20 x 20 cells 6 cm apart about the origin, colour varying with
+    /// position.
+    fn textured_patch() -> FloorPatch {
         let points_m: Vec<[f64; 2]> = (0..400)
             .map(|i| {
                 [
@@ -561,11 +559,19 @@ mod tests {
             .iter()
             .map(|p| [(p[0] + 1.0) as f32 * 0.4, (p[1] + 1.0) as f32 * 0.3, 0.5])
             .collect();
-        let patch = FloorPatch {
+        FloorPatch {
             pixels: vec![8; points_m.len()],
             colour,
             points_m,
-        };
+        }
+    }
+
+    #[test]
+    fn the_folded_scorer_agrees_with_point_by_point_lookups() {
+        let params = FloorParams::default();
+        let mut map = FloorMap::new([-1.0, -1.0], [1.0, 1.0], params);
+        // A textured floor, seen from two poses.
+        let patch = textured_patch();
         map.add(&patch, &Iso3::identity());
         map.add(
             &patch,
@@ -586,23 +592,7 @@ mod tests {
     fn a_bounded_score_is_exact_above_the_bound_and_stops_below_it() {
         let params = FloorParams::default();
         let mut map = FloorMap::new([-1.0, -1.0], [1.0, 1.0], params);
-        let points_m: Vec<[f64; 2]> = (0..400)
-            .map(|i| {
-                [
-                    f64::from(i % 20) * 0.06 - 0.6,
-                    f64::from(i / 20) * 0.06 - 0.6,
-                ]
-            })
-            .collect();
-        let colour = points_m
-            .iter()
-            .map(|p| [(p[0] + 1.0) as f32 * 0.4, (p[1] + 1.0) as f32 * 0.3, 0.5])
-            .collect();
-        let patch = FloorPatch {
-            pixels: vec![8; points_m.len()],
-            colour,
-            points_m,
-        };
+        let patch = textured_patch();
         map.add(&patch, &Iso3::identity());
         let far = iso_from_xy_yaw(0.3, -0.2, 0.6);
         for stride in [1, 2] {
