@@ -26,7 +26,7 @@ pub(super) fn check_refinement(ctx: &Context<'_>, pass: &Pass) -> RefinementChec
             .iter()
             .zip(poses)
             .enumerate()
-            .flat_map(|(i, (p, pose))| sightings(i, &p.clusters, &data.camera, &(pose * p.mount)))
+            .flat_map(|(i, (p, pose))| sightings(i, p.clusters(), &data.camera, &(pose * p.mount)))
             .collect()
     };
     let gate = crate::fuse::refine::GATE_M + moved_m;

@@ -370,7 +370,7 @@ pub fn replay(
     options: &FuseOptions,
     observers: &mut [&mut dyn Observer],
 ) -> Result<Outcome, ReplayError> {
-    let ctx = prepare(reader, classifier, &options.normalised(), observers)?;
+    let ctx = prepare(reader, classifier, &options.normalised())?;
     let options = &ctx.options.clone();
     for o in observers.iter_mut() {
         // An empty sparse grid: the same cells as the pass's fresh one, none allocated.
@@ -440,10 +440,10 @@ fn locate_from_detections(ctx: &Context<'_>, poses: &[Iso3], objects: &mut [Obje
         .map(|(p, pose)| View {
             odom_from_camera: pose * p.mount,
             detections: detections(&TileEvidence::from_probabilities(
-                p.probs.rows,
-                p.probs.cols,
-                p.probs.tile_px,
-                &p.probs.p,
+                p.probs().rows,
+                p.probs().cols,
+                p.probs().tile_px,
+                &p.probs().p,
                 ctx.prior,
             )),
         })

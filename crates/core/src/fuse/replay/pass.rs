@@ -12,7 +12,7 @@ use crate::fuse::refine::{
 };
 use crate::types::geometry::{Iso3, yaw_of};
 
-use super::prepare::{PREPARE_CHUNK, floor_patch_of};
+use super::prepare::prepare_ahead;
 use super::*;
 
 /// One pass over the prepared frames: its grid, the poses it fused with, the floor's state.
@@ -66,7 +66,7 @@ struct Tracker {
     pub(super) floor_failures: usize,
     /// Covariance of /odom's error since the first frame (the total correction's gate).
     pub(super) total_cov: nalgebra::Matrix3<f64>,
-    /// Floor patches made ahead of their frames (at most [`PREPARE_CHUNK`]), by frame index.
+    /// Floor patches made ahead of their frames (at most [`super::prepare::PREPARE_CHUNK`]), by frame index.
     pub(super) floor_ahead: BTreeMap<usize, FloorPatch>,
     /// The objects found after the last frame fused (the fuse's own rule): the next frame
     /// localises against them once the rule's view count is reached, instead of finding
@@ -173,7 +173,7 @@ fn step(
     if options.refine_poses {
         tracker.seen.extend(sightings(
             index,
-            &p.clusters,
+            p.clusters(),
             &data.camera,
             &(odom_from_base * p.mount),
         ));
@@ -217,7 +217,7 @@ fn step(
             odometry: p.odometry,
             correction,
             image: decode_frame(ctx.reader, data, fr)?,
-            probs: p.probs.clone(),
+            probs: p.probs().clone(),
             segments,
             cells_updated,
             objects: objects.clone(),
@@ -241,29 +241,16 @@ fn step(
     Ok(())
 }
 
-/// Frame `index`'s floor patch when the floor term is used (empty otherwise): made with the
-/// next frames', [`PREPARE_CHUNK`] at a time in parallel, when it is not made yet. Each is a
-/// pure function of its frame, so the result does not depend on the chunking or the threads.
+/// Frame `index` classified, and its floor patch when the floor term is used (empty
+/// otherwise): made with the next frames' ([`prepare_ahead`]) when it is not made yet.
 fn floor_patch(
     ctx: &Context<'_>,
     options: &FuseOptions,
     tracker: &mut Tracker,
     index: usize,
 ) -> Result<FloorPatch, ReplayError> {
-    use rayon::prelude::*;
-    let Some(fp) = floor_params(options) else {
-        return Ok(FloorPatch::default());
-    };
-    if !tracker.floor_ahead.contains_key(&index) {
-        let end = (index + PREPARE_CHUNK).min(ctx.prepared.len());
-        let made: Vec<Result<FloorPatch, ReplayError>> = (index..end)
-            .into_par_iter()
-            .map(|i| floor_patch_of(ctx, &ctx.prepared[i], &fp))
-            .collect();
-        for (i, patch) in (index..end).zip(made) {
-            tracker.floor_ahead.insert(i, patch?);
-        }
-    }
+    let fp = floor_params(options);
+    prepare_ahead(ctx, index, fp.as_ref(), &mut tracker.floor_ahead)?;
     Ok(tracker.floor_ahead.remove(&index).unwrap_or_default())
 }
 
@@ -390,7 +377,7 @@ fn localise(
     floor: &FloorPatch,
 ) -> (Correction, Iso3) {
     let (data, prepared, poses) = (&ctx.data, &ctx.prepared, &pass.poses);
-    let clusters = &prepared[index].clusters;
+    let clusters = prepared[index].clusters();
     let prev = index - 1;
     let p = &prepared[index];
     // Motion since the previous frame, each segment with its start pose moved by the
@@ -486,6 +473,6 @@ fn fuse_one(
     }
     let odom_from_camera = odom_from_base * p.mount;
     fuser.last_cells_updated =
-        fuser.integrate(&odom_from_camera, &odom_from_base, &data.camera, &p.probs)?;
+        fuser.integrate(&odom_from_camera, &odom_from_base, &data.camera, p.probs())?;
     Ok(segments)
 }

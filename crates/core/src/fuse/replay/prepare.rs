@@ -1,6 +1,7 @@
-//! Preparing a replay: the session read, the options checked against it, and every frame
-//! that can be fused classified once (with its detections, when refining; floor patches are
-//! made by the pass, a few frames ahead of their use).
+//! Preparing a replay: the session read, the options checked against it, and the frames that
+//! can be fused listed. The pass classifies them (with their detections, when refining) and
+//! makes their floor patches a few frames ahead of their use, from one decode of each frame;
+//! the probabilities are kept for the final check and a rolled-back pass.
 
 use crate::fuse::floor::{FloorParams, FloorPatch, floor_patch};
 use crate::fuse::grid::{GridError, GridSpec, TileEvidence, logit};
@@ -10,22 +11,60 @@ use crate::types::geometry::Iso3;
 use crate::types::image::Rgb8;
 use crate::types::probs::{FrameClassifier, TileProbs};
 
+use std::collections::BTreeMap;
+use std::sync::OnceLock;
+
 use super::*;
 
-/// A frame that will be fused: its reference, its /odom pose and its tile probabilities.
+/// A frame that will be fused: its reference, its /odom pose and, once the pass has reached
+/// it, its tile probabilities.
 pub(super) struct Prepared {
     pub(super) frame: FrameRef,
     pub(super) odometry: Iso3,
     /// The camera mount at the frame's stamp (base_from_camera).
     pub(super) mount: Iso3,
-    pub(super) probs: TileProbs,
-    /// Its detection clusters (pixels), when refining.
-    pub(super) clusters: Vec<[f64; 2]>,
+    /// Set once by the first pass, a few frames ahead of the frame's use ([`prepare_ahead`]).
+    classified: OnceLock<Classified>,
 }
 
-/// Everything a pass over the frames needs, read and classified once.
+/// What the classifier made of a frame.
+struct Classified {
+    probs: TileProbs,
+    /// Its detection clusters (pixels), when refining.
+    clusters: Vec<[f64; 2]>,
+}
+
+/// What a frame reads as before it is classified: no tiles, no detections. The pass
+/// classifies every frame before it fuses it, so nothing reads this but by mistake.
+static UNCLASSIFIED: Classified = Classified {
+    probs: TileProbs {
+        rows: 0,
+        cols: 0,
+        tile_px: 1,
+        p: Vec::new(),
+    },
+    clusters: Vec::new(),
+};
+
+impl Prepared {
+    fn classified(&self) -> &Classified {
+        self.classified.get().unwrap_or(&UNCLASSIFIED)
+    }
+    /// Its tile probabilities.
+    pub(super) fn probs(&self) -> &TileProbs {
+        &self.classified().probs
+    }
+    /// Its detection clusters (pixels), when refining.
+    pub(super) fn clusters(&self) -> &[[f64; 2]] {
+        &self.classified().clusters
+    }
+}
+
+/// Everything a pass over the frames needs, read once (frames classified once, by the first
+/// pass).
 pub(super) struct Context<'a> {
     pub(super) reader: &'a SessionReader,
+    pub(super) classifier: &'a dyn FrameClassifier,
     pub(super) data: SessionData,
     pub(super) spec: GridSpec,
     pub(super) prior: f64,
@@ -60,13 +99,12 @@ impl Context<'_> {
     }
 }
 
-/// Reads the session, checks the options against it, and classifies every frame that can be
-/// fused (the detection clusters too, when refining).
+/// Reads the session, checks the options against it, and lists the frames that can be fused
+/// (the pass classifies them: [`prepare_ahead`]).
 pub(super) fn prepare<'a>(
     reader: &'a SessionReader,
-    classifier: &dyn FrameClassifier,
+    classifier: &'a dyn FrameClassifier,
     options: &FuseOptions,
-    observers: &mut [&mut dyn Observer],
 ) -> Result<Context<'a>, ReplayError> {
     let mut data = load_session(reader)?;
     if options.poses == PoseSource::GroundTruth {
@@ -103,6 +141,7 @@ pub(super) fn prepare<'a>(
     Fuser::new(spec, prior, options.clone()).map_err(grid_err)?;
     let mut ctx = Context {
         reader,
+        classifier,
         data,
         spec,
         prior,
@@ -111,7 +150,15 @@ pub(super) fn prepare<'a>(
         options: options.clone(),
         choices,
     };
-    classify_frames(&mut ctx, classifier, &options, observers)?;
+    ctx.prepared = fusable_frames(&mut ctx)
+        .into_iter()
+        .map(|(frame, odometry, mount)| Prepared {
+            frame,
+            odometry,
+            mount,
+            classified: OnceLock::new(),
+        })
+        .collect();
     if ctx.prepared.is_empty() {
         return Err(ReplayError::NothingFused {
             path: ctx.data.path.clone(),
@@ -124,35 +171,6 @@ pub(super) fn prepare<'a>(
 /// Frames decoded and classified at once: enough to keep both cores busy, few enough that
 /// memory does not grow with the session (eight 1080 x 1920 frames are 50 MB).
 pub const PREPARE_CHUNK: usize = 8;
-
-/// Every frame that can be fused, classified once; frames without a pose or going back in
-/// time are skipped with a warning. Frames are classified in parallel chunks of
-/// [`PREPARE_CHUNK`] and kept in session order: each is a pure function of its frame, so the
-/// result is the same as one at a time.
-pub(super) fn classify_frames(
-    ctx: &mut Context<'_>,
-    classifier: &dyn FrameClassifier,
-    options: &FuseOptions,
-    observers: &mut [&mut dyn Observer],
-) -> Result<(), ReplayError> {
-    use rayon::prelude::*;
-    let todo = fusable_frames(ctx);
-    let total = todo.len();
-    for chunk in todo.chunks(PREPARE_CHUNK) {
-        for o in observers.iter_mut() {
-            o.on_progress(Stage::Classify, ctx.prepared.len(), total);
-        }
-        let shared: &Context<'_> = ctx;
-        let done: Vec<Result<Prepared, ReplayError>> = chunk
-            .par_iter()
-            .map(|t| prepare_frame(shared, classifier, options, t))
-            .collect();
-        for p in done {
-            ctx.prepared.push(p?);
-        }
-    }
-    Ok(())
-}
 
 /// The frames that can be fused, with their /odom pose and camera mount, in session order;
 /// the others are skipped with a warning.
@@ -190,50 +208,82 @@ fn fusable_frames(ctx: &mut Context<'_>) -> Vec<(FrameRef, Iso3, Iso3)> {
     todo
 }
 
-/// One frame decoded and classified, with its detection clusters when refining (its floor
-/// patch is made by the pass that uses it: [`floor_patch_of`]).
-fn prepare_frame(
+/// Makes frame `index` ready to fuse: classified (with its detection clusters when refining)
+/// and, when `floor` is given and `floor_ahead` lacks it, its floor patch made. Frames are
+/// prepared [`PREPARE_CHUNK`] at a time in parallel from `index` on, each decoded once for
+/// both; each is a pure function of its frame, so the result does not depend on the chunking
+/// or the threads. A floor patch is made by the pass that uses it, not kept for the whole
+/// session (a patch is ~40 kB: 1000 frames held 40 MB); a frame classified by an earlier
+/// pass is decoded again for it.
+pub(super) fn prepare_ahead(
     ctx: &Context<'_>,
-    classifier: &dyn FrameClassifier,
-    options: &FuseOptions,
-    (fr, odometry, mount): &(FrameRef, Iso3, Iso3),
-) -> Result<Prepared, ReplayError> {
-    let image = decode_frame(ctx.reader, &ctx.data, fr)?;
-    let probs = classifier.classify(&image);
-    let clusters = if options.refine_poses {
-        detection_clusters(&TileEvidence::from_probabilities(
-            probs.rows,
-            probs.cols,
-            probs.tile_px,
-            &probs.p,
-            ctx.prior,
-        ))
-    } else {
-        Vec::new()
-    };
-    Ok(Prepared {
-        frame: fr.clone(),
-        odometry: *odometry,
-        mount: *mount,
-        probs,
-        clusters,
-    })
+    index: usize,
+    floor: Option<&FloorParams>,
+    floor_ahead: &mut BTreeMap<usize, FloorPatch>,
+) -> Result<(), ReplayError> {
+    use rayon::prelude::*;
+    let wants_patch = |i: usize| floor.is_some() && !floor_ahead.contains_key(&i);
+    let ready = ctx
+        .prepared
+        .get(index)
+        .is_none_or(|p| p.classified.get().is_some());
+    if ready && !wants_patch(index) {
+        return Ok(());
+    }
+    let end = (index + PREPARE_CHUNK).min(ctx.prepared.len());
+    let todo: Vec<(usize, bool)> = (index..end).map(|i| (i, wants_patch(i))).collect();
+    let made: Vec<Result<Option<FloorPatch>, ReplayError>> = todo
+        .par_iter()
+        .map(|&(i, patch)| prepare_frame(ctx, &ctx.prepared[i], floor.filter(|_| patch)))
+        .collect();
+    for (&(i, _), m) in todo.iter().zip(made) {
+        if let Some(patch) = m? {
+            floor_ahead.insert(i, patch);
+        }
+    }
+    Ok(())
 }
 
-/// The floor patch of a prepared frame: decoded again, so that a replay holds the patches
-/// of the frames it is fusing, not of the whole session (a patch is ~40 kB, most of what a
-/// frame kept: 1000 frames held 40 MB, growing with the session); decoding costs ~1 % of a
-/// refined replay. The object is not floor: its detections (the tiles the landmarks use)
-/// are left out; they would pull the pose by their own projection onto the floor behind the
-/// object, which differs from every view (measured: the largest move of exact odometry
-/// falls from 0.060 to 0.048 m).
-pub(super) fn floor_patch_of(
+/// One frame decoded (when it is not classified yet or `floor` asks for its patch),
+/// classified once, and its floor patch when `floor` is given.
+fn prepare_frame(
     ctx: &Context<'_>,
     p: &Prepared,
-    fp: &FloorParams,
-) -> Result<FloorPatch, ReplayError> {
+    floor: Option<&FloorParams>,
+) -> Result<Option<FloorPatch>, ReplayError> {
+    if p.classified.get().is_some() && floor.is_none() {
+        return Ok(None);
+    }
     let image = decode_frame(ctx.reader, &ctx.data, &p.frame)?;
-    let probs = &p.probs;
+    let classified = p.classified.get_or_init(|| {
+        let probs = ctx.classifier.classify(&image);
+        let clusters = if ctx.options.refine_poses {
+            detection_clusters(&TileEvidence::from_probabilities(
+                probs.rows,
+                probs.cols,
+                probs.tile_px,
+                &probs.p,
+                ctx.prior,
+            ))
+        } else {
+            Vec::new()
+        };
+        Classified { probs, clusters }
+    });
+    Ok(floor.map(|fp| floor_patch_of(ctx, &image, &classified.probs, &p.mount, fp)))
+}
+
+/// The floor patch of a decoded frame with its tile probabilities. The object is not floor:
+/// its detections (the tiles the landmarks use) are left out; they would pull the pose by
+/// their own projection onto the floor behind the object, which differs from every view
+/// (measured: the largest move of exact odometry falls from 0.060 to 0.048 m).
+fn floor_patch_of(
+    ctx: &Context<'_>,
+    image: &Rgb8,
+    probs: &TileProbs,
+    mount: &Iso3,
+    fp: &FloorParams,
+) -> FloorPatch {
     let t = probs.tile_px.max(1);
     let min_logit = logit(ctx.prior) + f64::from(DETECTION_DELTA);
     // Decided once per tile, not per pixel (a logarithm per pixel was a tenth of the patch's
@@ -247,13 +297,7 @@ pub(super) fn floor_patch_of(
         let (r, c) = ((v / t) as usize, (u / t) as usize);
         r < probs.rows && c < probs.cols && object_tiles[r * probs.cols + c]
     };
-    Ok(floor_patch(
-        &image,
-        &ctx.data.camera,
-        &p.mount,
-        fp,
-        not_floor,
-    ))
+    floor_patch(image, &ctx.data.camera, mount, fp, not_floor)
 }
 
 /// Decodes a frame, checks its size against CameraInfo and rectifies it when the lens is
