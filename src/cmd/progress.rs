@@ -37,8 +37,9 @@ pub fn stage_spinner(quiet: bool) -> ProgressBar {
     bar
 }
 
-/// The replay's progress as an observer: the frames classified, then fused (a second pass
-/// after a rollback counted again); it asks for no frame steps, so it costs nothing.
+/// The replay's progress as an observer: the frames fused (classified as the first pass goes;
+/// a second pass after a rollback counted again); it asks for no frame steps, so it costs
+/// nothing.
 pub struct ReplayProgress {
     bar: ProgressBar,
 }
@@ -59,7 +60,6 @@ impl Observer for ReplayProgress {
 
     fn on_progress(&mut self, stage: Stage, done: usize, total: usize) {
         let message = match stage {
-            Stage::Classify => "classify",
             Stage::Fuse => "fuse",
         };
         if self.bar.message() != message {

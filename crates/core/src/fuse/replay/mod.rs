@@ -299,9 +299,8 @@ pub trait Observer {
 /// A stage of the replay, for progress.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Stage {
-    /// Decoding and classifying the frames (once, before the first pass).
-    Classify,
-    /// Fusing them (once per pass; twice after a rollback).
+    /// Classifying (the first pass, a few frames ahead) and fusing the frames: once per
+    /// pass, twice after a rollback.
     Fuse,
 }
 
