@@ -66,7 +66,8 @@ struct Tracker {
     pub(super) floor_failures: usize,
     /// Covariance of /odom's error since the first frame (the total correction's gate).
     pub(super) total_cov: nalgebra::Matrix3<f64>,
-    /// Floor patches made ahead of their frames (at most [`super::prepare::PREPARE_CHUNK`]), by frame index.
+    /// Floor patches made ahead of their frames (at most
+    /// [`super::prepare::PREPARE_CHUNK`]), by frame index.
     pub(super) floor_ahead: BTreeMap<usize, FloorPatch>,
     /// The objects found after the last frame fused (the fuse's own rule): the next frame
     /// localises against them once the rule's view count is reached, instead of finding
@@ -156,7 +157,7 @@ fn step(
 ) -> Result<(), ReplayError> {
     let p = &ctx.prepared[index];
     let data = &ctx.data;
-    let floor = floor_patch(ctx, options, tracker, index)?;
+    let floor = ready_frame(ctx, options, tracker, index)?;
     let mut floor_unfit = false;
     let correction = match index.checked_sub(1) {
         Some(prev) if options.refine_poses => {
@@ -241,9 +242,10 @@ fn step(
     Ok(())
 }
 
-/// Frame `index` classified, and its floor patch when the floor term is used (empty
-/// otherwise): made with the next frames' ([`prepare_ahead`]) when it is not made yet.
-fn floor_patch(
+/// Makes frame `index` ready to fuse: classified, with the next frames ([`prepare_ahead`]),
+/// when it is not yet; returns its floor patch when the floor term is used (empty
+/// otherwise).
+fn ready_frame(
     ctx: &Context<'_>,
     options: &FuseOptions,
     tracker: &mut Tracker,
