@@ -15,8 +15,9 @@ use rerun::RecordingStream;
 use super::{TIMELINE_FRAME, TIMELINE_LOG_TIME, VizError, log_err};
 use objloc_core::fuse::grid::{Grid, GridSpec};
 use objloc_core::fuse::refine::Verdict;
-use objloc_core::fuse::replay::{FrameStep, Observer, ObserverError, SessionData};
+use objloc_core::fuse::replay::{FrameStep, Observer, ObserverError, SessionData, StepImage};
 use objloc_core::io::msgs::iso_from_pose;
+use objloc_core::io::session::EncodedMedia;
 use objloc_core::out::view::{
     GridSummary, centroid_error_m, is_snapshot, overlay_rgba_of_tiles, pyramids, summarize_grid,
     upscale, verdict_rgb, viridis,
@@ -282,27 +283,43 @@ pub(crate) fn depth_image(probs: &TileProbs, width: u32, height: u32) -> rerun::
         .with_depth_range([0.0, 1.0])
 }
 
-/// Logs a frame, its tile probabilities (hoverable f32) and a viridis overlay under `base`.
+/// Logs a frame (`image`, an encoded image of `width` x `height` pixels), its tile
+/// probabilities (hoverable f32) and a viridis overlay under `base`.
 pub(crate) fn log_frame_and_probs(
     rec: &RecordingStream,
     base: &str,
-    image: &Rgb8,
+    image: &rerun::EncodedImage,
+    (width, height): (u32, u32),
     probs: &TileProbs,
 ) -> Result<(), VizError> {
-    rec.log(format!("{base}/image"), &encoded_jpeg(image)?)
-        .map_err(log_err)?;
-    let overlay = overlay_rgba_of_tiles(probs, image.width, image.height);
+    rec.log(format!("{base}/image"), image).map_err(log_err)?;
+    let overlay = overlay_rgba_of_tiles(probs, width, height);
     rec.log(
         format!("{base}/overlay"),
-        &encoded_png_rgba(&overlay, image.width, image.height)?.with_draw_order(10.0),
+        &encoded_png_rgba(&overlay, width, height)?.with_draw_order(10.0),
     )
     .map_err(log_err)?;
     rec.log(
         format!("{base}/probability"),
-        &depth_image(probs, image.width, image.height),
+        &depth_image(probs, width, height),
     )
     .map_err(log_err)?;
     Ok(())
+}
+
+/// A fused frame as Rerun shows it: the session's own PNG or JPEG file when the replay hands
+/// it over as recorded (no decoding, no encoding: the frame as it was fused), else JPEG.
+fn step_frame(image: &StepImage) -> Result<rerun::EncodedImage, VizError> {
+    match image {
+        StepImage::Encoded { media, bytes, .. } => {
+            let media_type = match media {
+                EncodedMedia::Png => rerun::MediaType::PNG,
+                EncodedMedia::Jpeg => rerun::MediaType::JPEG,
+            };
+            Ok(rerun::EncodedImage::from_file_contents(bytes.clone()).with_media_type(media_type))
+        }
+        StepImage::Decoded(rgb) => encoded_jpeg(rgb),
+    }
 }
 
 /// JPEG quality of the frames in a recording: the camera image is context, not data (its
@@ -310,7 +327,7 @@ pub(crate) fn log_frame_and_probs(
 const FRAME_JPEG_QUALITY: u8 = 90;
 
 /// A frame as a JPEG-encoded image (deterministic: the same pixels give the same bytes).
-fn encoded_jpeg(image: &Rgb8) -> Result<rerun::EncodedImage, VizError> {
+pub(crate) fn encoded_jpeg(image: &Rgb8) -> Result<rerun::EncodedImage, VizError> {
     let mut bytes = Vec::new();
     image::codecs::jpeg::JpegEncoder::new_with_quality(&mut bytes, FRAME_JPEG_QUALITY)
         .encode(
@@ -470,7 +487,13 @@ impl Logger {
         rec.set_time_sequence(TIMELINE_FRAME, step.index as i64);
         self.tracks(step, m.snapshot.as_ref())?;
         self.refinement(step, m.snapshot.is_some())?;
-        log_frame_and_probs(&self.rec, "world/robot/camera", &step.image, &step.probs)?;
+        log_frame_and_probs(
+            &self.rec,
+            "world/robot/camera",
+            &step_frame(&step.image)?,
+            step.image.size(),
+            &step.probs,
+        )?;
         self.pyramids(step)?;
         if let Some(s) = &m.snapshot {
             self.grid(&s.grid, &s.spec)?;

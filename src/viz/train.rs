@@ -9,7 +9,7 @@
 
 use rerun::RecordingStream;
 
-use super::fuse::{depth_image, log_frame_and_probs};
+use super::fuse::{depth_image, encoded_jpeg, log_frame_and_probs};
 use super::{TIMELINE_FRAME, TIMELINE_LOG_TIME, VizError, log_err};
 use objloc_core::learn::dataset::LoadedSession;
 use objloc_core::learn::model::Model;
@@ -98,7 +98,13 @@ pub fn log_training_frames(
             );
             rec.set_time_sequence(TIMELINE_FRAME, index);
             index += 1;
-            log_frame_and_probs(rec, "train/frame", &f.image, &model.predict(&f.image))?;
+            log_frame_and_probs(
+                rec,
+                "train/frame",
+                &encoded_jpeg(&f.image)?,
+                (f.image.width, f.image.height),
+                &model.predict(&f.image),
+            )?;
             if let Some(region) = &model.region {
                 let p = region.predict(&f.image);
                 rec.log(

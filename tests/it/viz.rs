@@ -15,7 +15,7 @@ use std::time::Instant;
 
 use serde_json::Value;
 
-use crate::common::pyenv::{py_json, rerun_cli, run_checked};
+use crate::common::pyenv::{py_json, rerun_cli, run_checked, sha256_hex};
 use crate::common::{json, objloc, ok, p, train};
 
 /// `rerun rrd SUBCOMMAND FILES...`, which must succeed.
@@ -84,6 +84,68 @@ fn u64s(v: &Value) -> Vec<u64> {
         .iter()
         .map(|x| x.as_u64().unwrap())
         .collect()
+}
+
+/// The PNG files of the chair tour's frames, in file order, cut out of the session's
+/// CompressedImage messages with the mcap crate (the PNG signature to the end of the CDR
+/// payload, where the `data` field ends), not with objloc's reader.
+fn session_pngs() -> Vec<Vec<u8>> {
+    const PNG_SIGNATURE: &[u8] = b"\x89PNG\r\n\x1a\n";
+    let bytes = std::fs::read("recordings/chair-tour.mcap").unwrap();
+    mcap::MessageStream::new(&bytes)
+        .unwrap()
+        .map(|m| m.unwrap())
+        .filter(|m| m.channel.topic == "/camera/image/compressed")
+        .map(|m| {
+            let at = m
+                .data
+                .windows(PNG_SIGNATURE.len())
+                .position(|w| w == PNG_SIGNATURE)
+                .expect("a PNG in the frame");
+            m.data[at..].to_vec()
+        })
+        .collect()
+}
+
+/// A fused frame of a session without lens distortion goes to Rerun as the session's own
+/// file, byte for byte (no decoding and encoding again).
+fn assert_frames_are_the_sessions_pngs(rrd: &Path) {
+    let chunks = py_json("rrd_contents.py", &[rrd]);
+    let mut logged: Vec<Value> = chunks
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|c| c["entity"] == "/world/robot/camera/image")
+        .flat_map(|c| {
+            c["columns"]["EncodedImage:blob"]
+                .as_array()
+                .unwrap()
+                .clone()
+        })
+        .collect();
+    let mut want: Vec<Value> = session_pngs()
+        .iter()
+        .map(|p| serde_json::json!([{"len": p.len(), "sha256": sha256_hex(p)}]))
+        .collect();
+    assert_eq!(want.len(), 8);
+    // Chunks may come in any order (see above): compare as sets of rows.
+    let key = |v: &Value| v.to_string();
+    logged.sort_by_key(key);
+    want.sort_by_key(key);
+    assert_eq!(logged, want);
+    let media: Vec<&Value> = chunks
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|c| c["entity"] == "/world/robot/camera/image")
+        .filter_map(|c| c["columns"].get("EncodedImage:media_type"))
+        .collect();
+    assert!(!media.is_empty());
+    for m in media {
+        for row in m.as_array().unwrap() {
+            assert_eq!(row, &serde_json::json!(["image/png"]), "{m}");
+        }
+    }
 }
 
 #[test]
@@ -223,6 +285,7 @@ fn fuse_recording_verifies_holds_the_documented_entities_and_replays_equal() {
     }
     // No recording-properties chunk: it would carry the wall-clock start time.
     assert!(v.get("/__properties").is_none());
+    assert_frames_are_the_sessions_pngs(&a);
     let size_mb = std::fs::metadata(&a).unwrap().len() as f64 / 1e6;
     assert!(size_mb < 50.0, "{size_mb} MB");
 }

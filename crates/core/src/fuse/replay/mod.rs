@@ -37,7 +37,7 @@ pub use tf::{MAX_CHAIN, TfError, TfTree};
 
 use check::check_refinement;
 use pass::{Pass, run_pass};
-use prepare::{Context, Prepared, decode_frame, floor_params, prepare};
+use prepare::{Context, Prepared, floor_params, prepare, step_image};
 
 use thiserror::Error;
 
@@ -46,7 +46,7 @@ use crate::fuse::locate::{View, ray_centre};
 use crate::fuse::motion::{BlurMode, Segment};
 use crate::fuse::objects::{Object, ObjectParams, find_objects_with_cells};
 use crate::fuse::refine::{Correction, detections};
-use crate::io::session::{At, SessionError, SessionReader};
+use crate::io::session::{At, EncodedMedia, SessionError, SessionReader};
 use crate::types::geometry::Iso3;
 use crate::types::image::Rgb8;
 use crate::types::probs::{FrameClassifier, TileProbs};
@@ -252,8 +252,8 @@ pub struct FrameStep {
     pub odometry: Iso3,
     /// The pose correction, when refining.
     pub correction: Option<Correction>,
-    /// The frame's decoded pixels.
-    pub image: Rgb8,
+    /// The frame's pixels: as recorded where they can be shown as they are.
+    pub image: StepImage,
     /// The classifier's tile probabilities for the frame.
     pub probs: TileProbs,
     /// Commands blurred into the belief before this frame.
@@ -266,6 +266,36 @@ pub struct FrameStep {
     pub max_probability: f64,
     /// Frames in this pass: the step with `index + 1 == frames` is the last.
     pub frames: usize,
+}
+
+/// A fused frame's pixels, as an observer gets them.
+#[derive(Debug, Clone, PartialEq)]
+pub enum StepImage {
+    /// The PNG or JPEG file the session recorded, of CameraInfo's size, with no lens
+    /// distortion to remove: the pixels the pass fused, shown without decoding.
+    Encoded {
+        /// Its format.
+        media: EncodedMedia,
+        /// The file's bytes.
+        bytes: Vec<u8>,
+        /// Width, pixels (CameraInfo's).
+        width: u32,
+        /// Height, pixels (CameraInfo's).
+        height: u32,
+    },
+    /// Decoded (and rectified, for a distorted lens): raw images, other formats, and
+    /// sessions whose frames are undistorted before they are fused.
+    Decoded(Rgb8),
+}
+
+impl StepImage {
+    /// Width and height, pixels.
+    pub fn size(&self) -> (u32, u32) {
+        match self {
+            Self::Encoded { width, height, .. } => (*width, *height),
+            Self::Decoded(img) => (img.width, img.height),
+        }
+    }
 }
 
 /// Sees the replay; cannot change it.
@@ -287,8 +317,9 @@ pub trait Observer {
     fn on_rollback(&mut self, _data: &SessionData) -> Result<(), ObserverError> {
         Ok(())
     }
-    /// Whether [`Observer::on_frame`] is wanted: building a [`FrameStep`] decodes the frame
-    /// again, which an observer of progress alone does not need.
+    /// Whether [`Observer::on_frame`] is wanted: building a [`FrameStep`] reads the frame
+    /// again (and decodes it when it cannot be handed over as recorded), which an observer
+    /// of progress alone does not need.
     fn wants_steps(&self) -> bool {
         true
     }

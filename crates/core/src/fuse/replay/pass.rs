@@ -217,7 +217,7 @@ fn step(
             odom_from_base,
             odometry: p.odometry,
             correction,
-            image: decode_frame(ctx.reader, data, fr)?,
+            image: step_image(ctx.reader, data, fr)?,
             probs: p.probs().clone(),
             segments,
             cells_updated,

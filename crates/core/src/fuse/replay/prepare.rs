@@ -6,7 +6,7 @@
 use crate::fuse::floor::{FloorParams, FloorPatch, floor_patch};
 use crate::fuse::grid::{GridError, GridSpec, TileEvidence, logit};
 use crate::fuse::refine::{DETECTION_DELTA, detection_clusters};
-use crate::io::session::{At, SessionMsg, SessionReader, fmt_ns};
+use crate::io::session::{At, Frame, SessionMsg, SessionReader, fmt_ns};
 use crate::types::geometry::Iso3;
 use crate::types::image::Rgb8;
 use crate::types::probs::{FrameClassifier, TileProbs};
@@ -300,6 +300,41 @@ fn floor_patch_of(
     floor_patch(image, &ctx.data.camera, mount, fp, not_floor)
 }
 
+/// A frame's message, decoded from the session (its pixels still as recorded).
+fn read_frame(reader: &SessionReader, fr: &FrameRef) -> Result<Frame, ReplayError> {
+    match reader.decode(&reader.index()[fr.raw_index])?.map(|m| m.msg) {
+        Some(SessionMsg::Frame(f)) => Ok(f),
+        _ => Err(ReplayError::Invalid {
+            at: reader.at(Some(&fr.topic), fr.log_time_ns),
+            what: "not a frame".into(),
+        }),
+    }
+}
+
+/// A fused frame's pixels for the observers: the recorded PNG or JPEG file as it is when
+/// there is no lens distortion to remove and its size is CameraInfo's (what the pass fused),
+/// else decoded like [`decode_frame`]. Showing a frame then costs no decoding and no encoding.
+pub(super) fn step_image(
+    reader: &SessionReader,
+    data: &SessionData,
+    fr: &FrameRef,
+) -> Result<StepImage, ReplayError> {
+    let frame = read_frame(reader, fr)?;
+    let size = (data.camera.width, data.camera.height);
+    if data.rectifier.is_none()
+        && let Some((media, bytes)) = frame.encoded_file()
+        && frame.dimensions().ok() == Some(size)
+    {
+        return Ok(StepImage::Encoded {
+            media,
+            bytes: bytes.to_vec(),
+            width: size.0,
+            height: size.1,
+        });
+    }
+    decoded(reader, data, fr, &frame).map(StepImage::Decoded)
+}
+
 /// Decodes a frame, checks its size against CameraInfo and rectifies it when the lens is
 /// distorted.
 pub(super) fn decode_frame(
@@ -307,17 +342,17 @@ pub(super) fn decode_frame(
     data: &SessionData,
     fr: &FrameRef,
 ) -> Result<Rgb8, ReplayError> {
+    decoded(reader, data, fr, &read_frame(reader, fr)?)
+}
+
+/// [`decode_frame`] of a frame's message already read.
+fn decoded(
+    reader: &SessionReader,
+    data: &SessionData,
+    fr: &FrameRef,
+    frame: &Frame,
+) -> Result<Rgb8, ReplayError> {
     let at = || reader.at(Some(&fr.topic), fr.log_time_ns);
-    let raw = &reader.index()[fr.raw_index];
-    let frame = match reader.decode(raw)?.map(|m| m.msg) {
-        Some(SessionMsg::Frame(f)) => f,
-        _ => {
-            return Err(ReplayError::Invalid {
-                at: at(),
-                what: "not a frame".into(),
-            });
-        }
-    };
     let image = frame
         .decode_rgb8()
         .map_err(|source| ReplayError::Frame { at: at(), source })?;

@@ -31,6 +31,11 @@ impl FrameClassifier for Constant {
 /// A 64 x 48 camera 1 m up, looking along +x, at the origin for `frames` frames 1 s apart;
 /// no /cmd_vel (nothing to blur or refine).
 fn session(path: &std::path::Path, frames: i64) -> SessionReader {
+    session_with_distortion(path, frames, &[])
+}
+
+/// [`session`] with plumb_bob distortion `d` in CameraInfo (none when empty).
+fn session_with_distortion(path: &std::path::Path, frames: i64, d: &[f64]) -> SessionReader {
     let mut w = SessionWriter::create(path).unwrap();
     let t = Topics::default();
     let start = 1_000_000_000;
@@ -62,7 +67,10 @@ fn session(path: &std::path::Path, frames: i64) -> SessionReader {
         };
         w.write(&t.odom, stamp, &odom).unwrap();
         let header = Header::new(stamp, "camera");
-        let info = CameraInfo::pinhole(header.clone(), 64, 48, 40.0, 40.0, 32.0, 24.0);
+        let mut info = CameraInfo::pinhole(header.clone(), 64, 48, 40.0, 40.0, 32.0, 24.0);
+        if !d.is_empty() {
+            info.d = d.to_vec();
+        }
         w.write(&t.camera_info, stamp, &info).unwrap();
         let image = CompressedImage {
             header,
@@ -110,4 +118,53 @@ fn each_view_adds_the_tiles_log_likelihood_ratio_to_the_cells_it_sees() {
     // (0.2 as f32 is 3e-9 off 0.2: a delta of 2e-8.)
     assert!((0..flat.grid.spec.cells()).all(|i| flat.grid.evidence_at(i).abs() < 1e-6));
     assert!(flat.objects.is_empty());
+}
+
+/// Keeps every step's image.
+#[derive(Default)]
+struct Images(Vec<StepImage>);
+
+impl Observer for Images {
+    fn on_frame(
+        &mut self,
+        _data: &SessionData,
+        step: &FrameStep,
+        _grid: &Grid,
+    ) -> Result<(), ObserverError> {
+        self.0.push(step.image.clone());
+        Ok(())
+    }
+}
+
+#[test]
+fn observers_get_the_recorded_file_unless_the_frame_is_undistorted_first() {
+    let dir = tempfile::tempdir().unwrap();
+    let png = crate::types::image::encode_png(64, 48, &vec![90u8; 64 * 48 * 3]).unwrap();
+    let options = FuseOptions {
+        bounds_m: Some(([-1.0, -1.0, 0.0], [3.0, 1.0, 2.0])),
+        voxel_size_m: 0.1,
+        ..FuseOptions::default()
+    };
+    let plain = session(&dir.path().join("plain.mcap"), 2);
+    let mut seen = Images::default();
+    replay(&plain, &Constant(0.6), &options, &mut [&mut seen]).unwrap();
+    let want = StepImage::Encoded {
+        media: EncodedMedia::Png,
+        bytes: png,
+        width: 64,
+        height: 48,
+    };
+    assert_eq!(seen.0, vec![want.clone(), want]);
+    // With a distorted lens the pass fuses the undistorted pixels, and that is what is shown.
+    let distorted =
+        session_with_distortion(&dir.path().join("d.mcap"), 2, &[-0.2, 0.05, 0.0, 0.0, 0.0]);
+    let mut seen = Images::default();
+    replay(&distorted, &Constant(0.6), &options, &mut [&mut seen]).unwrap();
+    assert_eq!(seen.0.len(), 2);
+    for img in &seen.0 {
+        let StepImage::Decoded(rgb) = img else {
+            panic!("a distorted frame was handed over as recorded");
+        };
+        assert_eq!((rgb.width, rgb.height), (64, 48));
+    }
 }

@@ -338,6 +338,37 @@ pub enum FramePixels {
     Raw(Image),
 }
 
+/// The file formats of a CompressedImage that objloc reads.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum EncodedMedia {
+    /// PNG (`image/png`).
+    Png,
+    /// JPEG (`image/jpeg`).
+    Jpeg,
+}
+
+impl EncodedMedia {
+    /// The format a CompressedImage `format` names (`png`, `jpeg`, or image_transport's
+    /// `rgb8; jpeg compressed bgr8` and the like), case aside; None for any other.
+    pub fn of_format(format: &str) -> Option<Self> {
+        let f = format.to_ascii_lowercase();
+        if f.contains("png") {
+            Some(Self::Png)
+        } else if f.contains("jpeg") || f.contains("jpg") {
+            Some(Self::Jpeg)
+        } else {
+            None
+        }
+    }
+
+    fn image_format(self) -> image::ImageFormat {
+        match self {
+            Self::Png => image::ImageFormat::Png,
+            Self::Jpeg => image::ImageFormat::Jpeg,
+        }
+    }
+}
+
 /// One camera frame of a session, from either image topic.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Frame {
@@ -421,6 +452,20 @@ impl Frame {
         }
     }
 
+    /// The recorded image file, when it is a PNG or JPEG file that its `format` names (its
+    /// bytes say so too): what a viewer can show without it being decoded and encoded again.
+    /// None for raw images and anything else.
+    pub fn encoded_file(&self) -> Option<(EncodedMedia, &[u8])> {
+        match &self.pixels {
+            FramePixels::Encoded { format, data } => {
+                let media = EncodedMedia::of_format(format)?;
+                (image::guess_format(data).ok() == Some(media.image_format()))
+                    .then_some((media, data.as_slice()))
+            }
+            FramePixels::Raw(_) => None,
+        }
+    }
+
     /// Decodes to RGB8. Sizes beyond [`MAX_IMAGE_SIDE_PX`] are refused before allocating.
     pub fn decode_rgb8(&self) -> Result<Rgb8, FrameError> {
         let (w, h) = self.dimensions()?;
@@ -432,14 +477,9 @@ impl Frame {
         }
         match &self.pixels {
             FramePixels::Encoded { format, data } => {
-                let f = format.to_ascii_lowercase();
-                let fmt = if f.contains("png") {
-                    image::ImageFormat::Png
-                } else if f.contains("jpeg") || f.contains("jpg") {
-                    image::ImageFormat::Jpeg
-                } else {
-                    return Err(FrameError::Format(format.clone()));
-                };
+                let fmt = EncodedMedia::of_format(format)
+                    .ok_or_else(|| FrameError::Format(format.clone()))?
+                    .image_format();
                 let img = image::load_from_memory_with_format(data, fmt)?.into_rgb8();
                 Ok(Rgb8 {
                     width: img.width(),
@@ -529,4 +569,52 @@ pub struct TimedMsg {
     pub topic: String,
     /// The decoded message.
     pub msg: SessionMsg,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn frame(format: &str, data: Vec<u8>) -> Frame {
+        Frame {
+            stamp_ns: 0,
+            frame_id: String::new(),
+            pixels: FramePixels::Encoded {
+                format: format.into(),
+                data,
+            },
+        }
+    }
+
+    #[test]
+    fn a_recorded_file_is_handed_over_only_when_its_format_and_bytes_agree() {
+        let png = crate::types::image::encode_png(2, 1, &[255, 0, 0, 0, 0, 255]).unwrap();
+        let f = frame("png", png.clone());
+        assert_eq!(f.encoded_file(), Some((EncodedMedia::Png, png.as_slice())));
+        // image_transport's compressed formats name the codec after a semicolon.
+        let f = frame("rgb8; png compressed bgr8", png.clone());
+        assert_eq!(f.encoded_file().map(|e| e.0), Some(EncodedMedia::Png));
+        // Bytes that are not what the format says, or a format objloc does not read: decoded
+        // (and refused) the usual way, never shown as something they are not.
+        assert_eq!(frame("jpeg", png.clone()).encoded_file(), None);
+        assert_eq!(frame("webp", png).encoded_file(), None);
+        assert_eq!(frame("png", b"not an image".to_vec()).encoded_file(), None);
+        let raw = Frame {
+            stamp_ns: 0,
+            frame_id: String::new(),
+            pixels: FramePixels::Raw(crate::io::msgs::Image {
+                header: crate::io::msgs::Header {
+                    stamp_ns: 0,
+                    frame_id: String::new(),
+                },
+                height: 1,
+                width: 1,
+                encoding: "rgb8".into(),
+                is_bigendian: 0,
+                step: 3,
+                data: vec![1, 2, 3],
+            }),
+        };
+        assert_eq!(raw.encoded_file(), None);
+    }
 }
