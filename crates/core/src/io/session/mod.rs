@@ -369,6 +369,14 @@ impl EncodedMedia {
     }
 }
 
+/// Whether a JPEG's EXIF orientation, if any, is "as stored" (false when it cannot be read).
+fn jpeg_is_upright(data: &[u8]) -> bool {
+    use image::ImageDecoder as _;
+    image::codecs::jpeg::JpegDecoder::new(std::io::Cursor::new(data))
+        .and_then(|mut d| d.orientation())
+        .is_ok_and(|o| o == image::metadata::Orientation::NoTransforms)
+}
+
 /// One camera frame of a session, from either image topic.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Frame {
@@ -453,13 +461,20 @@ impl Frame {
     }
 
     /// The recorded image file, when it is a PNG or JPEG file that its `format` names (its
-    /// bytes say so too): what a viewer can show without it being decoded and encoded again.
-    /// None for raw images and anything else.
+    /// bytes say so too) and shows its pixels as stored: what a viewer can show without it
+    /// being decoded and encoded again. None for raw images, anything else, and a JPEG whose
+    /// EXIF orientation asks a viewer to turn it (objloc classifies the stored pixels, which
+    /// is also what structure-from-motion tools pose, so a viewer that honoured the tag would
+    /// show another picture than the one fused).
     pub fn encoded_file(&self) -> Option<(EncodedMedia, &[u8])> {
         match &self.pixels {
             FramePixels::Encoded { format, data } => {
                 let media = EncodedMedia::of_format(format)?;
-                (image::guess_format(data).ok() == Some(media.image_format()))
+                let upright = match media {
+                    EncodedMedia::Png => true,
+                    EncodedMedia::Jpeg => jpeg_is_upright(data),
+                };
+                (upright && image::guess_format(data).ok() == Some(media.image_format()))
                     .then_some((media, data.as_slice()))
             }
             FramePixels::Raw(_) => None,
@@ -616,5 +631,48 @@ mod tests {
             }),
         };
         assert_eq!(raw.encoded_file(), None);
+    }
+
+    /// A JPEG of 8 x 8 grey pixels with an EXIF APP1 segment whose orientation tag is
+    /// `orientation` (1: as stored, 6: turn 90 degrees clockwise), after the SOI marker.
+    fn jpeg_with_orientation(orientation: u16) -> Vec<u8> {
+        let mut jpeg = Vec::new();
+        image::codecs::jpeg::JpegEncoder::new(&mut jpeg)
+            .encode(&[128u8; 8 * 8 * 3], 8, 8, image::ExtendedColorType::Rgb8)
+            .unwrap();
+        // TIFF header (little-endian, IFD at 8), one IFD entry: 0x0112 SHORT x 1.
+        let mut tiff = b"II*\0\x08\0\0\0".to_vec();
+        tiff.extend_from_slice(&1u16.to_le_bytes());
+        tiff.extend_from_slice(&0x0112u16.to_le_bytes());
+        tiff.extend_from_slice(&3u16.to_le_bytes());
+        tiff.extend_from_slice(&1u32.to_le_bytes());
+        tiff.extend_from_slice(&orientation.to_le_bytes());
+        tiff.extend_from_slice(&[0, 0, 0, 0, 0, 0]);
+        let mut app1 = vec![0xFF, 0xE1];
+        app1.extend_from_slice(&u16::try_from(2 + 6 + tiff.len()).unwrap().to_be_bytes());
+        app1.extend_from_slice(b"Exif\0\0");
+        app1.extend_from_slice(&tiff);
+        let mut out = jpeg[..2].to_vec();
+        out.extend_from_slice(&app1);
+        out.extend_from_slice(&jpeg[2..]);
+        out
+    }
+
+    #[test]
+    fn a_jpeg_a_viewer_would_turn_is_not_handed_over_as_recorded() {
+        let upright = jpeg_with_orientation(1);
+        assert_eq!(
+            frame("jpeg", upright.clone()).encoded_file(),
+            Some((EncodedMedia::Jpeg, upright.as_slice()))
+        );
+        let turned = jpeg_with_orientation(6);
+        // The tag is read (the same bytes decode to the same stored pixels either way).
+        use image::ImageDecoder as _;
+        let o = image::codecs::jpeg::JpegDecoder::new(std::io::Cursor::new(&turned))
+            .unwrap()
+            .orientation()
+            .unwrap();
+        assert_eq!(o, image::metadata::Orientation::Rotate90);
+        assert_eq!(frame("jpeg", turned).encoded_file(), None);
     }
 }
