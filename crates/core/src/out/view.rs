@@ -54,6 +54,25 @@ pub struct GridSummary {
     pub along_z: Vec<f32>,
 }
 
+/// Sorts `cells` into index order keeping at most `max_cells` of them: the most probable,
+/// ties to the lower index (a total order, so the cut does not depend on how the cells
+/// came). The cut comes before the sort: a real capture's fitted grid (200 cells a side)
+/// had 540 000 cells above 0.5, most of them the cones behind the object.
+fn most_probable_in_index_order(cells: &mut Vec<([i32; 3], f32)>, max_cells: usize) {
+    if cells.len() > max_cells {
+        if max_cells == 0 {
+            cells.clear();
+            return;
+        }
+        // Descending posterior (never NaN), then ascending index.
+        cells.select_nth_unstable_by(max_cells - 1, |a, b| {
+            b.1.total_cmp(&a.1).then(a.0.cmp(&b.0))
+        });
+        cells.truncate(max_cells);
+    }
+    cells.sort_unstable_by_key(|c| c.0);
+}
+
 fn binary_entropy_bits(p: f64) -> f64 {
     let h = |q: f64| if q > 0.0 { -q * q.log2() } else { 0.0 };
     h(p) + h(1.0 - p)
@@ -118,9 +137,14 @@ impl PosteriorTable {
 }
 
 /// The [`GridSummary`] of `grid`; the cells shown have a posterior above `min_posterior` and were
-/// seen by at least `min_views` frames. Cells outside the stored blocks are at the prior and
-/// count as such.
-pub fn summarize_grid(grid: &Grid, min_posterior: f32, min_views: u16) -> GridSummary {
+/// seen by at least `min_views` frames, at most `max_cells` of them (the most probable).
+/// Cells outside the stored blocks are at the prior and count as such.
+pub fn summarize_grid(
+    grid: &Grid,
+    min_posterior: f32,
+    min_views: u16,
+    max_cells: usize,
+) -> GridSummary {
     let region = grid.occupied_region();
     let [w, h, d] = region.dims;
     let table = POSTERIOR_TABLE.get_or_init(PosteriorTable::new);
@@ -161,7 +185,7 @@ pub fn summarize_grid(grid: &Grid, min_posterior: f32, min_views: u16) -> GridSu
             cells.extend(part.cells);
         }
     }
-    cells.sort_unstable_by_key(|c| c.0);
+    most_probable_in_index_order(&mut cells, max_cells);
     if !grid.is_fully_stored() {
         max_e = max_e.max(0.0);
     }
@@ -488,7 +512,7 @@ mod tests {
         // The prior 0.5 is log-odds 0: evidence and log-odds are the same.
         grid.set_cell(a, hi, 2).unwrap();
         grid.set_cell(b, hi, 1).unwrap();
-        let s = summarize_grid(&grid, 0.5, 2);
+        let s = summarize_grid(&grid, 0.5, 2, usize::MAX);
         assert_eq!(s.cells, vec![([1, 0, 1], 0.8)]);
         assert!((s.max_posterior - 0.8).abs() < 1e-6);
         // H(0.8) = 0.7219 bits, H(0.5) = 1: mean over 4 cells (2 * 0.7219 + 2) / 4.
@@ -514,6 +538,41 @@ mod tests {
     }
 
     #[test]
+    fn a_capped_summary_keeps_the_most_probable_cells_in_index_order() {
+        // Out of index order, as the slabs' blocks hand them over.
+        let cells = vec![
+            ([2, 0, 0], 0.55),
+            ([0, 1, 0], 0.7),
+            ([0, 0, 0], 0.6),
+            ([1, 0, 0], 0.7),
+            ([0, 0, 1], 0.9),
+        ];
+        let kept = |max: usize| {
+            let mut c = cells.clone();
+            most_probable_in_index_order(&mut c, max);
+            c
+        };
+        assert_eq!(
+            kept(5),
+            vec![
+                ([0, 0, 0], 0.6),
+                ([0, 0, 1], 0.9),
+                ([0, 1, 0], 0.7),
+                ([1, 0, 0], 0.7),
+                ([2, 0, 0], 0.55)
+            ]
+        );
+        // 0.9, then the two at 0.7: all three kept, in index order.
+        assert_eq!(
+            kept(3),
+            vec![([0, 0, 1], 0.9), ([0, 1, 0], 0.7), ([1, 0, 0], 0.7)]
+        );
+        // A tie at the cut goes to the lower index.
+        assert_eq!(kept(2), vec![([0, 0, 1], 0.9), ([0, 1, 0], 0.7)]);
+        assert!(kept(0).is_empty());
+    }
+
+    #[test]
     fn the_slabbed_summary_is_the_cell_by_cell_one() {
         use crate::fuse::grid::{Budget, GridStorage};
         // 19 x 13 x 11 cells: three slabs of x blocks (8, 8 and 3 columns), blocks cut at the
@@ -532,7 +591,7 @@ mod tests {
                     grid.set_cell(idx, e, (idx % 4) as u16).unwrap();
                 }
             }
-            let s = summarize_grid(&grid, 0.5, 2);
+            let s = summarize_grid(&grid, 0.5, 2, usize::MAX);
             let r = s.region;
             assert_eq!(r.first_cell, [from_x / 8 * 8, 0, 0], "{storage:?}");
             let [nx, ny, nz] = spec.dims;
