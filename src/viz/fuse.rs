@@ -27,8 +27,9 @@ use objloc_core::types::image::Rgb8;
 use objloc_core::types::probs::TileProbs;
 
 /// Cells of `world/grid` per snapshot, at most. The simulated room tours show 40 000-50 000
-/// cells above 0.5; a real capture's fitted grid (200 cells a side) showed 540 000, 8.7 MB a
-/// snapshot and two thirds of the stream's time, most of them the cones behind the object.
+/// cells above 0.5; a real capture's fitted grid (200 cells a side) showed 540 000, most of
+/// them the cones behind the object: 8.7 MB a snapshot, a 168 MB recording of a 12.7 MB
+/// session (docs/scale.md).
 pub const GRID_MAX_CELLS: usize = 100_000;
 
 /// What the fuse stream shows.
