@@ -19,8 +19,8 @@ use objloc_core::fuse::replay::{FrameStep, Observer, ObserverError, SessionData,
 use objloc_core::io::msgs::iso_from_pose;
 use objloc_core::io::session::EncodedMedia;
 use objloc_core::out::view::{
-    GridSummary, centroid_error_m, is_snapshot, overlay_rgba_of_tiles, pyramids, summarize_grid,
-    upscale, verdict_rgb, viridis,
+    GridSummary, centroid_error_m, is_snapshot, overlay_rgba_of_tiles, pyramids, snapshots_within,
+    summarize_grid, upscale_tiles, verdict_rgb, viridis,
 };
 use objloc_core::types::geometry::{Camera, Iso3, yaw_of};
 use objloc_core::types::image::Rgb8;
@@ -80,6 +80,12 @@ const WORLD_FRAME: &str = "tf#/world";
 /// wrote 0.4 MB a frame. The viewer shows the latest snapshot at any time; the robot, the
 /// camera frame, the pyramids, the objects and the plots stay per frame.
 const SNAPSHOTS: usize = 50;
+/// ...and fewer for a big grid: the snapshots together summarise about this many stored
+/// cells. The simulated and foreign rooms (at most 2.0 M stored cells, the held-out tiled
+/// floor's) keep all 50; a real capture's fitted grid (6-7 M cells, 40-50 frames) gets 14-16
+/// instead of one a frame, which (43 on the milk carton) took two thirds of the time the
+/// stream added to its replay.
+const SNAPSHOT_CELLS: usize = 100_000_000;
 /// One line per refined frame: the verdict and its numbers; the rollback, when it happens.
 const VERDICT_LOG: &str = "refinement";
 /// Frames the replay may run ahead of the logging thread: enough to smooth out a snapshot
@@ -268,24 +274,17 @@ fn truth_boxes(data: &SessionData) -> Option<rerun::Boxes3D> {
 /// Tile probabilities in [0, 1] as a hoverable image of the frame's size: u8 steps of 1/255
 /// (the viewer shows p as the "depth"), a quarter of f32's bytes for a stream that logs one
 /// per frame. Each tile is quantised once and then spread over its pixels (pixels past the
-/// last whole tile are 0): the same bytes as quantising every pixel of [`upscale`], with a
-/// 64th of the roundings (`roundf` was 1.1-1.4 % of the CPU samples of a streamed replay;
+/// last whole tile are 0): the same bytes as quantising every pixel of
+/// [`objloc_core::out::view::upscale`], with a 64th of the roundings (`roundf` was 1.1-1.4 % of the CPU samples of a streamed replay;
 /// the replay's total CPU time did not move measurably).
 pub(crate) fn depth_image(probs: &TileProbs, width: u32, height: u32) -> rerun::DepthImage {
-    let quantised = TileProbs {
-        p: probs
-            .p
-            .iter()
-            .map(|v| f32::from((v.clamp(0.0, 1.0) * 255.0).round() as u8))
-            .collect(),
-        rows: probs.rows,
-        cols: probs.cols,
-        tile_px: probs.tile_px,
-    };
-    let bytes: Vec<u8> = upscale(&quantised, width, height)
-        .into_iter()
-        .map(|v| v as u8)
+    let quantised: Vec<u8> = probs
+        .p
+        .iter()
+        .map(|v| (v.clamp(0.0, 1.0) * 255.0).round() as u8)
         .collect();
+    let layout = [probs.rows, probs.cols, probs.tile_px as usize];
+    let bytes = upscale_tiles(&quantised, layout, width, height);
     rerun::DepthImage::from_data_type_and_bytes(bytes, [width, height], rerun::ChannelDatatype::U8)
         .with_meter(255.0)
         .with_colormap(rerun::components::Colormap::Viridis)
@@ -410,7 +409,8 @@ impl FuseViz {
     /// The frame as the logging thread needs it: a copy of the step; at a snapshot, the grid
     /// summarised and the tracks so far.
     fn message(&self, data: &SessionData, step: &FrameStep, grid: &Grid) -> FrameMessage {
-        let snapshot = is_snapshot(step.index, step.frames, SNAPSHOTS).then(|| {
+        let wanted = snapshots_within(SNAPSHOT_CELLS, grid.stored_cells(), SNAPSHOTS);
+        let snapshot = is_snapshot(step.index, step.frames, wanted).then(|| {
             let stamp = step.frame.stamp_ns;
             let o = &self.options;
             Snapshot {
