@@ -336,16 +336,26 @@ const FRAME_JPEG_QUALITY: u8 = 90;
 
 /// A frame as a JPEG-encoded image (deterministic: the same pixels give the same bytes).
 pub(crate) fn encoded_jpeg(image: &Rgb8) -> Result<rerun::EncodedImage, VizError> {
+    let bytes = jpeg_bytes(image)?;
+    Ok(rerun::EncodedImage::from_file_contents(bytes).with_media_type(rerun::MediaType::JPEG))
+}
+
+/// The JPEG file of a frame at [`FRAME_JPEG_QUALITY`].
+fn jpeg_bytes(image: &Rgb8) -> Result<Vec<u8>, VizError> {
+    let side = |v: u32| {
+        u16::try_from(v)
+            .map_err(|_| VizError::Encode(format!("a side of {v} px is beyond JPEG's 65535")))
+    };
     let mut bytes = Vec::new();
-    image::codecs::jpeg::JpegEncoder::new_with_quality(&mut bytes, FRAME_JPEG_QUALITY)
+    jpeg_encoder::Encoder::new(&mut bytes, FRAME_JPEG_QUALITY)
         .encode(
             &image.data,
-            image.width,
-            image.height,
-            image::ExtendedColorType::Rgb8,
+            side(image.width)?,
+            side(image.height)?,
+            jpeg_encoder::ColorType::Rgb,
         )
         .map_err(|e| VizError::Encode(e.to_string()))?;
-    Ok(rerun::EncodedImage::from_file_contents(bytes).with_media_type(rerun::MediaType::JPEG))
+    Ok(bytes)
 }
 
 /// An RGBA image as PNG (lossless; the overlay is flat per tile, so it compresses well).
@@ -811,5 +821,60 @@ impl Observer for FuseViz {
     }
     fn on_rollback(&mut self, _data: &SessionData) -> Result<(), ObserverError> {
         Ok(self.send(Message::Rollback)?)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A smooth 64 x 48 test card: red along x, green along y, blue constant.
+    fn card() -> Rgb8 {
+        let (w, h) = (64u32, 48u32);
+        let data = (0..h)
+            .flat_map(|y| (0..w).flat_map(move |x| [(x * 4) as u8, (y * 5) as u8, 128]))
+            .collect();
+        Rgb8 {
+            width: w,
+            height: h,
+            data,
+        }
+    }
+
+    #[test]
+    fn a_frame_s_jpeg_decodes_to_its_pixels_and_is_the_same_every_time() {
+        let img = card();
+        let bytes = jpeg_bytes(&img).expect("encodes");
+        assert_eq!(bytes, jpeg_bytes(&img).expect("encodes again"));
+        // Decoded by another codec (image's, zune-jpeg): the size, and every channel within
+        // a few levels of the card at quality 90.
+        let back = image::load_from_memory_with_format(&bytes, image::ImageFormat::Jpeg)
+            .expect("decodes")
+            .to_rgb8();
+        assert_eq!(back.dimensions(), (64, 48));
+        let diffs: Vec<i32> = back
+            .as_raw()
+            .iter()
+            .zip(&img.data)
+            .map(|(&a, &b)| (i32::from(a) - i32::from(b)).abs())
+            .collect();
+        let mean = diffs.iter().sum::<i32>() as f64 / diffs.len() as f64;
+        assert!(mean < 2.0, "mean error {mean}");
+        assert!(
+            diffs.iter().all(|&d| d <= 12),
+            "max error {:?}",
+            diffs.iter().max()
+        );
+    }
+
+    #[test]
+    fn a_frame_wider_than_jpeg_allows_is_an_error_naming_its_size() {
+        let img = Rgb8 {
+            width: 70_000,
+            height: 1,
+            data: vec![0; 70_000 * 3],
+        };
+        let err = jpeg_bytes(&img).expect_err("too wide");
+        assert!(err.to_string().contains("70000 px"), "{err}");
     }
 }

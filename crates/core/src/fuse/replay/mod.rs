@@ -400,7 +400,8 @@ pub fn replay(
     options: &FuseOptions,
     observers: &mut [&mut dyn Observer],
 ) -> Result<Outcome, ReplayError> {
-    let ctx = prepare(reader, classifier, &options.normalised())?;
+    let mut ctx = prepare(reader, classifier, &options.normalised())?;
+    ctx.keep_decoded = ctx.data.rectifier.is_some() && observers.iter().any(|o| o.wants_steps());
     let options = &ctx.options.clone();
     for o in observers.iter_mut() {
         // An empty sparse grid: the same cells as the pass's fresh one, none allocated.

@@ -217,7 +217,7 @@ fn step(
             odom_from_base,
             odometry: p.odometry,
             correction,
-            image: step_image(ctx.reader, data, fr)?,
+            image: step_image(ctx.reader, data, p)?,
             probs: p.probs().clone(),
             segments,
             cells_updated,

@@ -1,7 +1,9 @@
 //! Preparing a replay: the session read, the options checked against it, and the frames that
 //! can be fused listed. The pass classifies them (with their detections, when refining) and
 //! makes their floor patches a few frames ahead of their use, from one decode of each frame;
-//! the probabilities are kept for the final check and a rolled-back pass.
+//! the probabilities are kept for the final check and a rolled-back pass. When observers
+//! want the frames and a frame cannot be shown as recorded (a distorted lens), that decode
+//! is kept until the frame is fused, so it is not decoded and rectified a second time.
 
 use crate::fuse::floor::{FloorParams, FloorPatch, floor_patch};
 use crate::fuse::grid::{GridError, GridSpec, TileEvidence, logit};
@@ -12,7 +14,7 @@ use crate::types::image::Rgb8;
 use crate::types::probs::{FrameClassifier, TileProbs};
 
 use std::collections::BTreeMap;
-use std::sync::OnceLock;
+use std::sync::{Mutex, OnceLock};
 
 use super::*;
 
@@ -25,6 +27,9 @@ pub(super) struct Prepared {
     pub(super) mount: Iso3,
     /// Set once by the first pass, a few frames ahead of the frame's use ([`prepare_ahead`]).
     classified: OnceLock<Classified>,
+    /// The frame as decoded for classifying, kept for the observers until it is fused when
+    /// [`Context::keep_decoded`] says so (at most [`PREPARE_CHUNK`] frames at once).
+    decoded: Mutex<Option<Rgb8>>,
 }
 
 /// What the classifier made of a frame.
@@ -74,6 +79,11 @@ pub(super) struct Context<'a> {
     pub(super) options: FuseOptions,
     /// What the session chose and why.
     pub(super) choices: Vec<String>,
+    /// Whether a frame's decode is kept for the observers ([`Prepared`]): they want the
+    /// frames, and the lens is distorted, so a frame is shown as the pass fused it (decoded
+    /// and rectified), not as recorded. Decoding and rectifying a phone frame a second time
+    /// was a seventh of what streaming the fruit capture to Rerun added.
+    pub(super) keep_decoded: bool,
 }
 
 impl Context<'_> {
@@ -149,6 +159,7 @@ pub(super) fn prepare<'a>(
         warnings,
         options: options.clone(),
         choices,
+        keep_decoded: false,
     };
     ctx.prepared = fusable_frames(&mut ctx)
         .into_iter()
@@ -157,6 +168,7 @@ pub(super) fn prepare<'a>(
             odometry,
             mount,
             classified: OnceLock::new(),
+            decoded: Mutex::new(None),
         })
         .collect();
     if ctx.prepared.is_empty() {
@@ -270,7 +282,17 @@ fn prepare_frame(
         };
         Classified { probs, clusters }
     });
-    Ok(floor.map(|fp| floor_patch_of(ctx, &image, &classified.probs, &p.mount, fp)))
+    let patch = floor.map(|fp| floor_patch_of(ctx, &image, &classified.probs, &p.mount, fp));
+    if ctx.keep_decoded {
+        *lock(&p.decoded) = Some(image);
+    }
+    Ok(patch)
+}
+
+/// The slot's guard: a panic elsewhere while it was held left nothing half-written in it.
+fn lock(slot: &Mutex<Option<Rgb8>>) -> std::sync::MutexGuard<'_, Option<Rgb8>> {
+    slot.lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner)
 }
 
 /// The floor patch of a decoded frame with its tile probabilities. The object is not floor:
@@ -313,12 +335,17 @@ fn read_frame(reader: &SessionReader, fr: &FrameRef) -> Result<Frame, ReplayErro
 
 /// A fused frame's pixels for the observers: the recorded PNG or JPEG file as it is when
 /// there is no lens distortion to remove and its size is CameraInfo's (what the pass fused),
-/// else decoded like [`decode_frame`]. Showing a frame then costs no decoding and no encoding.
+/// else the decode kept by [`prepare_frame`] or, without one, decoded like [`decode_frame`].
+/// Showing a frame then costs no decoding and no encoding.
 pub(super) fn step_image(
     reader: &SessionReader,
     data: &SessionData,
-    fr: &FrameRef,
+    p: &Prepared,
 ) -> Result<StepImage, ReplayError> {
+    if let Some(image) = lock(&p.decoded).take() {
+        return Ok(StepImage::Decoded(image));
+    }
+    let fr = &p.frame;
     let frame = read_frame(reader, fr)?;
     let size = (data.camera.width, data.camera.height);
     if data.rectifier.is_none()

@@ -120,18 +120,19 @@ fn each_view_adds_the_tiles_log_likelihood_ratio_to_the_cells_it_sees() {
     assert!(flat.objects.is_empty());
 }
 
-/// Keeps every step's image.
+/// Keeps every step's image, and the session's rectifier.
 #[derive(Default)]
-struct Images(Vec<StepImage>);
+struct Images(Vec<StepImage>, Option<crate::types::lens::Rectifier>);
 
 impl Observer for Images {
     fn on_frame(
         &mut self,
-        _data: &SessionData,
+        data: &SessionData,
         step: &FrameStep,
         _grid: &Grid,
     ) -> Result<(), ObserverError> {
         self.0.push(step.image.clone());
+        self.1.clone_from(&data.rectifier);
         Ok(())
     }
 }
@@ -157,7 +158,7 @@ fn observers_get_the_recorded_file_unless_the_frame_is_undistorted_first() {
     assert_eq!(seen.0, vec![want.clone(), want]);
     // With a distorted lens the pass fuses the undistorted pixels, and that is what is shown.
     let distorted =
-        session_with_distortion(&dir.path().join("d.mcap"), 2, &[-0.2, 0.05, 0.0, 0.0, 0.0]);
+        session_with_distortion(&dir.path().join("d.mcap"), 2, &[0.3, 0.05, 0.0, 0.0, 0.0]);
     let mut seen = Images::default();
     replay(&distorted, &Constant(0.6), &options, &mut [&mut seen]).unwrap();
     assert_eq!(seen.0.len(), 2);
@@ -166,5 +167,18 @@ fn observers_get_the_recorded_file_unless_the_frame_is_undistorted_first() {
             panic!("a distorted frame was handed over as recorded");
         };
         assert_eq!((rgb.width, rgb.height), (64, 48));
+        // The decode kept from classifying: the recorded card rectified, as fused.
+        let card = Rgb8 {
+            width: 64,
+            height: 48,
+            data: vec![90u8; 64 * 48 * 3],
+        };
+        let want = seen.1.as_ref().expect("a distorted lens").apply(&card);
+        assert_eq!(rgb, &want);
+        let black = want.data.chunks(3).filter(|p| p == &[0, 0, 0]).count();
+        assert!(
+            black > 0 && want.data[(24 * 64 + 32) * 3] == 90,
+            "{black} black"
+        );
     }
 }
