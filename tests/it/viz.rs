@@ -86,12 +86,17 @@ fn u64s(v: &Value) -> Vec<u64> {
         .collect()
 }
 
-/// The PNG files of the chair tour's frames, in file order, cut out of the session's
-/// CompressedImage messages with the mcap crate (the PNG signature to the end of the CDR
-/// payload, where the `data` field ends), not with objloc's reader.
+/// The PNG files of the chair tour's frames (see [`pngs_of`]).
 fn session_pngs() -> Vec<Vec<u8>> {
+    pngs_of("recordings/chair-tour.mcap")
+}
+
+/// The PNG files of a session's frames, in file order, cut out of its CompressedImage
+/// messages with the mcap crate (the PNG signature to the end of the CDR payload, where the
+/// `data` field ends), not with objloc's reader.
+fn pngs_of(session: &str) -> Vec<Vec<u8>> {
     const PNG_SIGNATURE: &[u8] = b"\x89PNG\r\n\x1a\n";
-    let bytes = std::fs::read("recordings/chair-tour.mcap").unwrap();
+    let bytes = std::fs::read(session).unwrap();
     mcap::MessageStream::new(&bytes)
         .unwrap()
         .map(|m| m.unwrap())
@@ -347,6 +352,49 @@ fn train_recording_has_the_tree_graph_and_frames() {
             cols.iter().any(|c| c == "DepthImage:buffer"),
             "{entity}: {cols:?}"
         );
+    }
+    assert_training_frames_are_jpegs_of_the_session(dir.path(), &rrd);
+}
+
+/// Every training frame in the recording is a JPEG (encoded by objloc, at quality 90) that
+/// `image`'s decoder turns back into one of chair-train's frames, within a few levels.
+fn assert_training_frames_are_jpegs_of_the_session(dir: &Path, rrd: &Path) {
+    let blob_dir = dir.join("blobs");
+    std::fs::create_dir_all(&blob_dir).unwrap();
+    let listed = py_json(
+        "rrd_contents.py",
+        &[
+            OsStr::new("--blobs"),
+            OsStr::new("/train/frame/image"),
+            rrd.as_os_str(),
+            blob_dir.as_os_str(),
+        ],
+    );
+    let session: Vec<Vec<u8>> = pngs_of("recordings/chair-train.mcap")
+        .iter()
+        .map(|png| image::load_from_memory(png).unwrap().to_rgb8().into_raw())
+        .collect();
+    let blobs = listed.as_array().unwrap();
+    assert_eq!(blobs.len(), 21);
+    for path in blobs {
+        let bytes = std::fs::read(path.as_str().unwrap()).unwrap();
+        assert_eq!(&bytes[..3], b"\xff\xd8\xff", "not a JPEG: {path}");
+        let rgb = image::load_from_memory_with_format(&bytes, image::ImageFormat::Jpeg)
+            .unwrap()
+            .to_rgb8();
+        assert_eq!(rgb.dimensions(), (256, 240));
+        // The session's frame it is closest to: mean absolute error per channel, in levels
+        // (2.2 for the first frame at quality 90; a wrong frame or broken file is far above 3).
+        let mean = |want: &Vec<u8>| {
+            let sum: u64 = want
+                .iter()
+                .zip(rgb.as_raw())
+                .map(|(&a, &b)| u64::from(a.abs_diff(b)))
+                .sum();
+            sum as f64 / want.len() as f64
+        };
+        let best = session.iter().map(mean).fold(f64::INFINITY, f64::min);
+        assert!(best < 3.0, "{path}: mean error {best} levels");
     }
 }
 

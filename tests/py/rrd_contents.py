@@ -2,10 +2,14 @@
 
 Usage: rrd_contents.py FILE.rrd
        rrd_contents.py --entities FILE.rrd
+       rrd_contents.py --blobs ENTITY FILE.rrd DIR
 Prints a JSON list with one entry per chunk: entity path, static or not, row count and its
 columns. Time columns become int64 nanoseconds; Blob columns (encoded images) become
 {len, sha256} per row; other component columns are given in full, except the raw MCAP
 channel/schema records and reflected ROS messages, which are named but not listed.
+
+With --blobs ENTITY DIR, writes every blob logged on ENTITY (an encoded image's file) to
+DIR/NNNN.bin in the order the reader yields them, and prints the list of paths.
 
 With --entities, prints instead one entry per entity path, its chunks merged: static (true
 when every chunk is), its column names (sorted) and the sorted values of its `log_time` and
@@ -55,6 +59,27 @@ def entities(path):
     sys.stdout.write("\n")
 
 
+def blobs(entity, path, out_dir):
+    import os
+
+    paths = []
+    for chunk in RrdReader(path).stream():
+        if chunk.entity_path != entity:
+            continue
+        batch = chunk.to_record_batch()
+        for name in batch.schema.names:
+            if not name.endswith(":blob"):
+                continue
+            for row in batch.column(name).to_pylist():
+                for b in row or []:
+                    p = os.path.join(out_dir, "%04d.bin" % len(paths))
+                    with open(p, "wb") as f:
+                        f.write(bytes(b))
+                    paths.append(p)
+    json.dump(paths, sys.stdout)
+    sys.stdout.write("\n")
+
+
 def main(path):
     chunks = []
     for chunk in RrdReader(path).stream():
@@ -79,5 +104,7 @@ def main(path):
 if __name__ == "__main__":
     if sys.argv[1] == "--entities":
         entities(sys.argv[2])
+    elif sys.argv[1] == "--blobs":
+        blobs(sys.argv[2], sys.argv[3], sys.argv[4])
     else:
         main(sys.argv[1])
