@@ -275,8 +275,9 @@ fn truth_boxes(data: &SessionData) -> Option<rerun::Boxes3D> {
 /// (the viewer shows p as the "depth"), a quarter of f32's bytes for a stream that logs one
 /// per frame. Each tile is quantised once and then spread over its pixels (pixels past the
 /// last whole tile are 0): the same bytes as quantising every pixel of
-/// [`objloc_core::out::view::upscale`], with a 64th of the roundings (`roundf` was 1.1-1.4 % of the CPU samples of a streamed replay;
-/// the replay's total CPU time did not move measurably).
+/// [`objloc_core::out::view::upscale`], with a 64th of the roundings (`roundf` was 1.1-1.4 %
+/// of the CPU samples of a streamed replay; the replay's total CPU time did not move
+/// measurably).
 pub(crate) fn depth_image(probs: &TileProbs, width: u32, height: u32) -> rerun::DepthImage {
     let quantised: Vec<u8> = probs
         .p
@@ -336,12 +337,6 @@ const FRAME_JPEG_QUALITY: u8 = 90;
 
 /// A frame as a JPEG-encoded image (deterministic: the same pixels give the same bytes).
 pub(crate) fn encoded_jpeg(image: &Rgb8) -> Result<rerun::EncodedImage, VizError> {
-    let bytes = jpeg_bytes(image)?;
-    Ok(rerun::EncodedImage::from_file_contents(bytes).with_media_type(rerun::MediaType::JPEG))
-}
-
-/// The JPEG file of a frame at [`FRAME_JPEG_QUALITY`].
-fn jpeg_bytes(image: &Rgb8) -> Result<Vec<u8>, VizError> {
     let side = |v: u32| {
         u16::try_from(v)
             .map_err(|_| VizError::Encode(format!("a side of {v} px is beyond JPEG's 65535")))
@@ -355,7 +350,7 @@ fn jpeg_bytes(image: &Rgb8) -> Result<Vec<u8>, VizError> {
             jpeg_encoder::ColorType::Rgb,
         )
         .map_err(|e| VizError::Encode(e.to_string()))?;
-    Ok(bytes)
+    Ok(rerun::EncodedImage::from_file_contents(bytes).with_media_type(rerun::MediaType::JPEG))
 }
 
 /// An RGBA image as PNG (lossless; the overlay is flat per tile, so it compresses well).
