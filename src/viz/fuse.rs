@@ -285,7 +285,7 @@ pub(crate) fn depth_image(probs: &TileProbs, width: u32, height: u32) -> rerun::
         .map(|v| (v.clamp(0.0, 1.0) * 255.0).round() as u8)
         .collect();
     let layout = [probs.rows, probs.cols, probs.tile_px as usize];
-    let bytes = upscale_tiles(&quantised, layout, width, height);
+    let bytes = upscale_tiles(&quantised, layout, width, height, 0);
     rerun::DepthImage::from_data_type_and_bytes(bytes, [width, height], rerun::ChannelDatatype::U8)
         .with_meter(255.0)
         .with_colormap(rerun::components::Colormap::Viridis)
