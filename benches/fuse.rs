@@ -3,7 +3,7 @@
 //! motion blur of each kind, and how both scale with the grid; each as the median of repeated
 //! runs, with the same operations timed in NumPy (scripts/numpy_peer.py, when the venv at
 //! target/pyenv exists) as the peer for a ratio. `OBJLOC_BENCH_SCALING=1` adds grids up to
-//! 400^3.
+//! 400^3; `OBJLOC_BENCH_GRID_ONLY=1` leaves out the tours.
 
 // A benchmark may unwrap and expect: a failure ends the run with its message.
 #![allow(clippy::unwrap_used, clippy::expect_used, missing_docs)]
@@ -217,8 +217,12 @@ fn camera_resolution() {
 }
 
 fn main() {
-    chair_tour();
-    camera_resolution();
+    // `OBJLOC_BENCH_GRID_ONLY=1`: the grid operations alone (seconds, not minutes), for
+    // comparing two builds of the update or the blur.
+    if std::env::var_os("OBJLOC_BENCH_GRID_ONLY").is_none() {
+        chair_tour();
+        camera_resolution();
+    }
     let threads = rayon::current_num_threads();
     println!("fuser benchmarks, {threads} rayon threads, medians");
     let mut sizes = vec![50usize, 100, 200];

@@ -26,7 +26,7 @@ import subprocess
 import sys
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-BIN = os.path.join(ROOT, "target", "release", "objloc")
+BIN = os.environ.get("OBJLOC_BIN") or os.path.join(ROOT, "target", "release", "objloc")
 OUT = os.path.join(ROOT, "target", "measure-sessions")
 FOREIGN = os.environ.get("FOREIGN_DIR", os.path.join(ROOT, "..", "shared", "foreign", "sessions"))
 HELDOUT = os.path.join(ROOT, "target", "measure-heldout")

@@ -13,11 +13,15 @@ fn sparse(spec: GridSpec, prior: f64) -> Grid {
 }
 
 fn random_evidence(seed: u64, rows: usize, cols: usize, prior: f64) -> TileEvidence {
+    random_tiles(seed, rows, cols, 8, prior)
+}
+
+fn random_tiles(seed: u64, rows: usize, cols: usize, tile_px: u32, prior: f64) -> TileEvidence {
     let mut rng = crate::types::rng::SplitMix64::new(seed);
     let p: Vec<f32> = (0..rows * cols)
         .map(|_| 0.01 + 0.98 * rng.uniform() as f32)
         .collect();
-    TileEvidence::from_probabilities(rows, cols, 8, &p, prior)
+    TileEvidence::from_probabilities(rows, cols, tile_px, &p, prior)
 }
 
 #[test]
@@ -25,10 +29,17 @@ fn column_spans_skip_only_cells_outside_the_view() {
     // Cameras inside and outside the grid, level, tilted, looking straight down and
     // straight along z (columns parallel to the image planes): the spanned update of a dense
     // and of a sparse grid must change exactly the cells, by exactly the values, of testing
-    // every cell.
+    // every cell. Tiles of 8 px (a power of two: the update multiplies by the exact 1/8)
+    // and of 6 px (it divides), against the reference's division.
+    for (tile_px, rows, cols) in [(8, 6, 8), (6, 8, 10)] {
+        let ev = random_tiles(7, rows, cols, tile_px, 0.01);
+        spans_match_the_reference(&ev);
+    }
+}
+
+fn spans_match_the_reference(ev: &TileEvidence) {
     let spec = GridSpec::from_bounds([-1.0, -1.0, 0.0], [1.0, 1.0, 1.2], 0.05).unwrap();
     let cam = Camera::with_hfov(64, 48, 1.1);
-    let ev = random_evidence(7, 6, 8, 0.01);
     let mut rng = crate::types::rng::SplitMix64::new(7);
     let mut poses: Vec<Iso3> = vec![
         Iso3::identity(),
@@ -51,10 +62,10 @@ fn column_spans_skip_only_cells_outside_the_view() {
         let mut dense = Grid::new(spec, 0.01).unwrap();
         let mut sp = sparse(spec, 0.01);
         let mut slow = Plain::new(spec);
-        let k = dense.integrate(&cfo, &cam, &ev, depth).unwrap();
-        assert_eq!(sp.integrate(&cfo, &cam, &ev, depth).unwrap(), k);
+        let k = dense.integrate(&cfo, &cam, ev, depth).unwrap();
+        assert_eq!(sp.integrate(&cfo, &cam, ev, depth).unwrap(), k);
         assert_eq!(
-            slow.integrate(&cfo, &cam, &ev, depth),
+            slow.integrate(&cfo, &cam, ev, depth),
             k,
             "pose {odom_from_camera}"
         );
