@@ -165,7 +165,15 @@ fn print_eval(e: &Evaluation) {
                 .map(|x| format!("{x:.3} m"))
                 .unwrap_or_else(|| "-".into()),
             f.refinement
-                .map(|v| format!(", pose {}", v.label()))
+                .map(|v| format!(
+                    ", pose {}{}",
+                    v.label(),
+                    if f.detections_only {
+                        " (detections alone)"
+                    } else {
+                        ""
+                    }
+                ))
                 .unwrap_or_default()
         );
     }

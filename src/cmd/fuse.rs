@@ -511,6 +511,14 @@ fn print_refinement(r: &Report) {
                 .map(|[a, b]| format!("; floor disagreement {a:.3} refined, {b:.3} /odom"))
                 .unwrap_or_default()
         );
+        if !c.rolled_back && !c.detections_only.is_empty() {
+            println!(
+                "UNVERIFIED: {} of {} frames were corrected against the detections alone (frames {}), the rays this check compares; nothing independent shows them better than /odom (compare with --no-refine-poses)",
+                c.detections_only.len(),
+                r.per_frame.len(),
+                frame_list(&c.detections_only),
+            );
+        }
         if c.rolled_back {
             println!(
                 "ROLLED BACK to /odom: {}",
@@ -519,6 +527,19 @@ fn print_refinement(r: &Report) {
                     .unwrap_or("the refined poses explained the frames worse")
             );
         }
+    }
+}
+
+/// Frame indices for a line of stdout: all of them up to 10, else the first 8 and a count.
+fn frame_list(frames: &[usize]) -> String {
+    let shown: Vec<String> = frames
+        .iter()
+        .take(if frames.len() > 10 { 8 } else { 10 })
+        .map(|i| i.to_string())
+        .collect();
+    match frames.len() - shown.len() {
+        0 => shown.join(", "),
+        more => format!("{}, and {more} more", shown.join(", ")),
     }
 }
 

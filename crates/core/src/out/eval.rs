@@ -231,6 +231,10 @@ pub struct FrameEval {
     /// frame, which anchors the frame of reference).
     #[serde(default)]
     pub refinement: Option<crate::fuse::refine::Verdict>,
+    /// Whether the applied correction came from the detections alone (no floor): nothing
+    /// but the rays it was fitted to supports it.
+    #[serde(default)]
+    pub detections_only: bool,
 }
 
 /// A fuse report scored against ground truth (what `objloc eval --json` prints).
@@ -416,6 +420,9 @@ pub fn evaluate(
                     .then(|| errs.iter().sum::<f64>() / errs.len() as f64),
                 max_error_m: errs.iter().copied().reduce(f64::max),
                 refinement: f.correction.map(|c| c.outcome),
+                detections_only: f
+                    .correction
+                    .is_some_and(|c| c.applied && c.floor_cells == 0),
             }
         })
         .collect();

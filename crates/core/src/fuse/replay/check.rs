@@ -47,11 +47,21 @@ pub(super) fn check_refinement(ctx: &Context<'_>, pass: &Pass) -> RefinementChec
     let floor_better = floor.is_some_and(|[r, o]| o > r * (1.0 + ROLLBACK_TOLERANCE));
     let rolled_back =
         pass.poses != odometry && ((rays_worse && !floor_better) || (floor_worse && !rays_better));
+    let detections_only = pass
+        .per_frame
+        .iter()
+        .filter(|f| {
+            f.correction
+                .is_some_and(|c| c.applied && c.floor_cells == 0)
+        })
+        .map(|f| f.index)
+        .collect();
     RefinementCheck {
         refined_rays: refined,
         odometry_rays: odom,
         floor_disagreement: floor,
         floor_dropped_at: pass.floor_dropped_at,
+        detections_only,
         rolled_back,
         reason: if !rolled_back {
             None
@@ -84,6 +94,12 @@ pub struct RefinementCheck {
     pub floor_disagreement: Option<[f64; 2]>,
     /// The frame from which the floor term was dropped because the floor no longer fit.
     pub floor_dropped_at: Option<usize>,
+    /// Frames whose applied correction came from the detections alone (no floor cell): the
+    /// rays this check compares are the evidence those poses were fitted to, so it cannot
+    /// show them worse than /odom. Measured on 48 simulated tours (docs/fuser.md): every
+    /// replay that refinement made worse without being rolled back had such frames.
+    #[serde(default)]
+    pub detections_only: Vec<usize>,
     /// Whether the replay fell back to /odom.
     pub rolled_back: bool,
     /// Why, in words.
