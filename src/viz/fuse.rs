@@ -607,7 +607,10 @@ impl Logger {
             if snapshot {
                 self.log_refined_track()?;
             }
+            // Applied from the detections alone: the end check cannot verify it (docs/fuser.md).
+            let alone = c.applied && c.floor_cells == 0;
             let level = match c.outcome {
+                Verdict::Accepted if alone => rerun::TextLogLevel::WARN,
                 Verdict::Accepted | Verdict::Insignificant | Verdict::NoEvidence => {
                     rerun::TextLogLevel::INFO
                 }
@@ -617,9 +620,10 @@ impl Logger {
             self.rec.log(
                 VERDICT_LOG,
                 &rerun::TextLog::new(format!(
-                    "frame {}: {} (gain {:.1}, {} landmark(s), {} floor cells, total chi-square {:.1})",
+                    "frame {}: {}{} (gain {:.1}, {} landmark(s), {} floor cells, total chi-square {:.1})",
                     step.index,
                     c.outcome.label(),
+                    if alone { ", from the detections alone (unverified)" } else { "" },
                     c.gain,
                     c.anchors,
                     c.floor_cells,
