@@ -6,7 +6,7 @@ use std::path::PathBuf;
 
 use anyhow::{Context, bail};
 
-use objloc_core::io::session::{SessionMsg, SessionReader};
+use objloc_core::io::session::{IndexScope, SessionMsg, SessionReader};
 use objloc_core::out::eval::{Evaluation, evaluate, true_objects};
 use objloc_core::out::report::{REPORT_VERSION, Report};
 
@@ -42,8 +42,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 }
 
 fn evaluate_reports(args: &Args) -> anyhow::Result<()> {
-    let reader = SessionReader::open(&args.session, args.topics.topics()?)
-        .with_context(|| format!("eval {}", args.session.display()))?;
+    let reader =
+        SessionReader::open_scoped(&args.session, args.topics.topics()?, IndexScope::Roles)
+            .with_context(|| format!("eval {}", args.session.display()))?;
     let mut gt = None;
     let mut poses = Vec::new();
     for m in reader.messages() {

@@ -15,7 +15,7 @@ use objloc_core::fuse::grid::{GridStorage, MAX_EXPORT_BYTES};
 use objloc_core::fuse::motion::BlurMode;
 use objloc_core::fuse::objects::ObjectParams;
 use objloc_core::fuse::replay::{FuseOptions, Locate, Outcome, PoseSource, SessionFit, replay};
-use objloc_core::io::session::SessionReader;
+use objloc_core::io::session::{IndexScope, SessionReader};
 use objloc_core::learn::model::Model;
 use objloc_core::out::report::{Report, file_sha256};
 
@@ -253,7 +253,8 @@ pub fn fuse(
     }
     let t0 = Instant::now();
     let model = Model::load(model_path).context("loading the model")?;
-    let reader = SessionReader::open(session, topics.topics()?).context("reading the session")?;
+    let reader = SessionReader::open_scoped(session, topics.topics()?, IndexScope::Roles)
+        .context("reading the session")?;
     let session_sha256 = file_sha256(session).with_context(|| session.display().to_string())?;
     let model_sha256 = file_sha256(model_path).with_context(|| model_path.display().to_string())?;
     let t_load = t0.elapsed();

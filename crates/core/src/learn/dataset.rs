@@ -19,7 +19,7 @@ use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
 use crate::io::msgs::RegionOfInterest;
-use crate::io::session::{At, SessionError, SessionMsg, SessionReader, Topics};
+use crate::io::session::{At, IndexScope, SessionError, SessionMsg, SessionReader, Topics};
 use crate::learn::features::{
     FeatureSpec, bin_planes, feature_count, histograms_of_bins, with_context,
 };
@@ -112,7 +112,7 @@ pub fn load_session(
     labelled_only: bool,
 ) -> Result<LoadedSession, DatasetError> {
     let sha256 = file_sha256(path)?;
-    let reader = SessionReader::open(path, topics)?;
+    let reader = SessionReader::open_scoped(path, topics, IndexScope::Roles)?;
     reader.require_frames()?;
     // Frames are kept as indexes into the reader and decoded once selected: the encoded
     // frames of a long session are never all in memory at once.

@@ -9,7 +9,8 @@ mod reader;
 mod writer;
 
 pub use reader::{
-    ChannelInfo, MessageMeta, PayloadAt, SessionReader, SummarySection, read_summary_section,
+    ChannelInfo, IndexScope, MessageMeta, PayloadAt, SessionReader, SummarySection,
+    read_summary_section,
 };
 pub use writer::SessionWriter;
 

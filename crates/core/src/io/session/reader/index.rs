@@ -18,7 +18,8 @@ use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOp
 
 use super::super::{At, SessionError};
 use super::{
-    ByteSpan, ChannelInfo, MessageMeta, RECORD_LENGTH_LIMIT, Segment, SessionReader, read_full,
+    ByteSpan, ChannelInfo, IndexScope, MessageMeta, RECORD_LENGTH_LIMIT, Segment, SessionReader,
+    read_full,
 };
 
 /// MCAP records start with an opcode (1 byte) and a 64-bit length (8 bytes).
@@ -358,6 +359,9 @@ impl SessionReader {
                 what: format!("message refers to unknown channel {}", header.channel_id),
             });
         }
+        if self.unindexed.contains(&header.channel_id) {
+            return Ok(());
+        }
         self.messages.push(MessageMeta {
             channel_id: header.channel_id,
             sequence: header.sequence,
@@ -402,6 +406,9 @@ impl SessionReader {
                             ),
                         })?
                 };
+                if self.scope == IndexScope::Roles && self.topics.role_of(&c.topic).is_none() {
+                    self.unindexed.insert(c.id);
+                }
                 self.channels.insert(
                     c.id,
                     ChannelInfo {

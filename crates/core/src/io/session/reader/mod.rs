@@ -7,7 +7,9 @@
 //! chunk and the message's ordinal in it, or a file offset), 32 bytes a message, so memory
 //! does not grow with the payloads; payloads come from a small cache of decompressed chunks
 //! that changes how fast, never what, a message reads; the order is that of a stable sort, so
-//! it is total and the same on every run.
+//! it is total and the same on every run. A reader opened for the roles
+//! ([`IndexScope::Roles`]) scans and checks every record alike but indexes only the messages
+//! of channels whose topic has a role: a robot's IMU, lidar and diagnostics cost nothing.
 //!
 //! Layout: [`index`] is the scan, [`source`] the file or memory it reads and the chunk cache,
 //! [`decode`] the CDR decoding by role, [`summary`] the summary-section reader of
@@ -36,6 +38,17 @@ const MCAP_MAGIC: &[u8; 8] = b"\x89MCAP0\r\n";
 /// No single record of a session comes near this; a corrupt length field beyond it is
 /// refused instead of allocated.
 const RECORD_LENGTH_LIMIT: usize = 256 << 20;
+
+/// Which messages a reader indexes. Either way every record is scanned and checked alike.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum IndexScope {
+    /// Every message (`inspect`, which reports on every topic).
+    #[default]
+    All,
+    /// Only messages on the topics of the reader's [`super::Topics`] roles (a replay, training,
+    /// eval): other channels are listed in [`SessionReader::channels`] but have no messages.
+    Roles,
+}
 
 /// A channel as declared in the file, with its schema.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -128,6 +141,9 @@ pub struct SessionReader {
     /// MCAP header library: what wrote the file, e.g. `objloc 0.1.0`.
     pub library: String,
     channels: BTreeMap<u16, ChannelInfo>,
+    scope: IndexScope,
+    /// Channels whose messages are not indexed (no role, under [`IndexScope::Roles`]).
+    unindexed: std::collections::BTreeSet<u16>,
     messages: Vec<MessageMeta>,
     segments: Vec<Segment>,
     chunk_count: usize,
@@ -167,9 +183,19 @@ fn read_full(input: &mut impl Read, buf: &mut [u8]) -> std::io::Result<usize> {
 }
 
 impl SessionReader {
-    /// Indexes the session file at `path` in one pass through a buffered reader; `topics`
-    /// gives topics their roles. The file stays open: payloads are read from it on decoding.
+    /// Indexes every message of the session file at `path` in one pass through a buffered
+    /// reader; `topics` gives topics their roles. The file stays open: payloads are read from
+    /// it on decoding.
     pub fn open(path: &Path, topics: super::Topics) -> Result<Self, SessionError> {
+        Self::open_scoped(path, topics, IndexScope::All)
+    }
+
+    /// [`SessionReader::open`], indexing the messages `scope` asks for.
+    pub fn open_scoped(
+        path: &Path,
+        topics: super::Topics,
+        scope: IndexScope,
+    ) -> Result<Self, SessionError> {
         let io = |source| SessionError::Io {
             path: path.to_owned(),
             source,
@@ -188,6 +214,7 @@ impl SessionReader {
         };
         file.seek(SeekFrom::Start(0)).map_err(io)?;
         let mut me = Self::empty(path, topics, file_len, Source::Memory(Vec::new()));
+        me.scope = scope;
         me.check_head(&head[..head_len])?;
         let ends_with_magic = tail_len == MCAP_MAGIC.len() && tail == *MCAP_MAGIC;
         // The `take` keeps the scan to the length seen at opening, as one read of the whole
@@ -231,6 +258,8 @@ impl SessionReader {
             profile: String::new(),
             library: String::new(),
             channels: BTreeMap::new(),
+            scope: IndexScope::All,
+            unindexed: std::collections::BTreeSet::new(),
             messages: Vec::new(),
             segments: Vec::new(),
             chunk_count: 0,
@@ -305,7 +334,8 @@ impl SessionReader {
         })
     }
 
-    /// Number of messages on `topic`.
+    /// Number of messages on `topic` in the index (0 for a topic without a role under
+    /// [`IndexScope::Roles`]).
     pub fn count(&self, topic: &str) -> usize {
         let ids: Vec<u16> = self
             .channels

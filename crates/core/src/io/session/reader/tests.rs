@@ -586,3 +586,41 @@ fn a_chunk_left_with_the_writers_placeholder_length_is_a_truncation() {
         "{e}"
     );
 }
+
+/// Opened for the roles, the reader indexes the /cmd_vel channel (a role) and not /a and /b
+/// (none): exactly the messages and payloads of the full index on that channel, in the same
+/// order; the other channels are still listed, and a damaged chunk is still found.
+#[test]
+fn a_reader_for_the_roles_indexes_only_their_channels() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("roles.mcap");
+    let bytes = write(&path, small_chunks(), &increasing(600));
+    let all = SessionReader::open(&path, Topics::default()).unwrap();
+    let roles = SessionReader::open_scoped(&path, Topics::default(), IndexScope::Roles).unwrap();
+    assert_eq!(roles.channels(), all.channels());
+    let twist_id = *all
+        .channels()
+        .iter()
+        .find(|(_, c)| c.topic == "/cmd_vel")
+        .unwrap()
+        .0;
+    let want: Vec<ReadBack> = read_all(&all)
+        .into_iter()
+        .filter(|m| m.1 == twist_id)
+        .collect();
+    assert_eq!(want.len(), 200);
+    assert_eq!(read_all(&roles), want);
+    assert_eq!(roles.count("/cmd_vel"), 200);
+    assert_eq!(roles.count("/a"), 0);
+    assert_eq!(all.count("/a"), 200);
+    // The scan is the same: a byte flipped inside a chunk of /a and /b messages is an error
+    // for both readers.
+    let cut = chunk_indexes(&bytes)[1].clone();
+    let mut bad = bytes.clone();
+    let mid = usize::try_from(cut.chunk_start_offset + cut.chunk_length / 2).unwrap();
+    bad[mid] ^= 0x5a;
+    let bad_path = dir.path().join("bad.mcap");
+    std::fs::write(&bad_path, &bad).unwrap();
+    assert!(SessionReader::open(&bad_path, Topics::default()).is_err());
+    assert!(SessionReader::open_scoped(&bad_path, Topics::default(), IndexScope::Roles).is_err());
+}
