@@ -236,6 +236,17 @@ impl fmt::Display for At {
     }
 }
 
+/// The MCAP library's error on one line, for a one-line message: its parser's errors carry
+/// a styled backtrace through the crate's source files (terminal escapes, box drawing, the
+/// build machine's paths), of which only the innermost error says what is wrong.
+fn one_line(e: &mcap::McapError) -> String {
+    let text = match e {
+        mcap::McapError::Parse(p) => format!("record parse failed: {}", p.root_cause()),
+        e => e.to_string(),
+    };
+    text.split_whitespace().collect::<Vec<_>>().join(" ")
+}
+
 /// Why a session could not be read (or written).
 #[derive(Debug, Error)]
 pub enum SessionError {
@@ -257,15 +268,15 @@ pub enum SessionError {
         head: Vec<u8>,
     },
     /// The MCAP layer failed: a damaged record or chunk on reading, or a write that failed.
-    #[error("{at}: {what}: {source}")]
+    #[error("{at}: {what}: {}", one_line(cause))]
     Mcap {
         /// Where: on reading, the last intact message before the damage.
         at: At,
         /// What was being done or what is damaged, in words.
         what: String,
-        /// The MCAP library's error.
-        #[source]
-        source: mcap::McapError,
+        /// The MCAP library's error: in the message on one line, not chained as a source
+        /// (its own text is a multi-line styled backtrace).
+        cause: mcap::McapError,
     },
     /// A session-role message's CDR payload does not decode as the role's type.
     #[error("{at}: cannot decode {type_name}: {source}")]

@@ -50,7 +50,7 @@ impl SessionWriter {
                     log_time_ns: None,
                 },
                 what: "cannot start the MCAP file".into(),
-                source,
+                cause: source,
             })?;
         Ok(Self {
             path: path.to_owned(),
@@ -72,7 +72,11 @@ impl SessionWriter {
             log_time_ns: Some(log_time_ns),
         };
         let what = what.to_owned();
-        move |source| SessionError::Mcap { at, what, source }
+        move |source| SessionError::Mcap {
+            at,
+            what,
+            cause: source,
+        }
     }
 
     /// Writes `msg` on `topic` with log_time = publish_time = `stamp_ns` (its header stamp).
@@ -138,7 +142,7 @@ impl SessionWriter {
                 log_time_ns: None,
             },
             what: "cannot finish the MCAP file".into(),
-            source,
+            cause: source,
         })?;
         let file = self.writer.into_inner();
         file.sync_all().map_err(|source| SessionError::Io {

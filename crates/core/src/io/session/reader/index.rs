@@ -172,8 +172,15 @@ impl SessionReader {
     fn parse<'a>(&self, opcode: u8, data: &'a [u8]) -> Result<Record<'a>, SessionError> {
         mcap::parse_record(opcode, data).map_err(|source| SessionError::Mcap {
             at: self.at_last(),
-            what: format!("record (opcode {opcode:#04x}) after this does not parse"),
-            source,
+            what: match self.messages.last() {
+                Some(_) => {
+                    format!("a record (opcode {opcode:#04x}) after this message does not parse")
+                }
+                None => {
+                    format!("a record (opcode {opcode:#04x}) before any message does not parse")
+                }
+            },
+            cause: source,
         })
     }
 
@@ -303,7 +310,7 @@ impl SessionReader {
                     "damaged data after byte {} (after the message named here; the file ends with the MCAP magic, so it is not truncated)",
                     self.bytes_intact
                 ),
-                source,
+                cause: source,
             }),
             _ if ran_out => {
                 let at = self.at_last();
@@ -327,7 +334,7 @@ impl SessionReader {
                     "damaged data after byte {} (after the message named here)",
                     self.bytes_intact
                 ),
-                source,
+                cause: source,
             }),
         }
     }

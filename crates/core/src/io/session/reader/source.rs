@@ -197,7 +197,7 @@ impl SessionReader {
                 "the chunk at byte {} read when the file was opened but not now",
                 span.offset_bytes
             ),
-            source,
+            cause: source,
         };
         let mut reader = chunk_reader();
         let mut cursor = 0;

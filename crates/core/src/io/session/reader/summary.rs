@@ -55,7 +55,7 @@ pub fn read_summary_section(path: &Path) -> Result<Option<SummarySection>, Sessi
                 log_time_ns: None,
             },
             what,
-            source,
+            cause: source,
         }
     };
     let mut file = File::open(path).map_err(io)?;

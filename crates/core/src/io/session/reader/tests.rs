@@ -624,3 +624,30 @@ fn a_reader_for_the_roles_indexes_only_their_channels() {
     assert!(SessionReader::open(&bad_path, Topics::default()).is_err());
     assert!(SessionReader::open_scoped(&bad_path, Topics::default(), IndexScope::Roles).is_err());
 }
+
+/// A record that does not parse is a one-line error: the MCAP parser's innermost error,
+/// without its styled backtrace (escapes, box drawing, the crate's source paths), and not
+/// repeated by an error chain. The file: the magic, a Header record whose profile string
+/// claims 16 bytes and has none, the magic (found by fuzzing, 2026-12-04).
+#[test]
+fn a_record_that_does_not_parse_is_a_one_line_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("bad-header.mcap");
+    let mut bytes = MCAP_MAGIC.to_vec();
+    bytes.push(0x01);
+    bytes.extend_from_slice(&4u64.to_le_bytes());
+    bytes.extend_from_slice(&[0x10, 0, 0, 0]);
+    bytes.extend_from_slice(MCAP_MAGIC);
+    std::fs::write(&path, &bytes).unwrap();
+    let e = SessionReader::open(&path, Topics::default()).unwrap_err();
+    assert!(std::error::Error::source(&e).is_none(), "{e:?}");
+    let chain = e.to_string();
+    assert!(
+        chain.ends_with(
+            "bad-header.mcap: a record (opcode 0x01) before any message does not parse: record \
+             parse failed: not enough bytes in reader"
+        ),
+        "{chain}"
+    );
+    assert!(!chain.contains(['\n', '\u{1b}', '━']), "{chain}");
+}
