@@ -220,9 +220,8 @@ impl Collected {
             None => self.camera = Some((cam, d, ci.header.frame_id.clone())),
             Some((c, d0, _)) if !same_camera(c, &cam) || *d0 != d => {
                 return Err(invalid(format!(
-                    "CameraInfo changes during the session (fx {:.3} -> {:.3}, cx {:.3} -> {:.3}, \
-                     {} x {} -> {} x {}); objloc fuses one camera",
-                    c.fx, cam.fx, c.cx, cam.cx, c.width, c.height, cam.width, cam.height
+                    "CameraInfo changes during the session ({}); objloc fuses one camera",
+                    camera_changes((c, d0), (&cam, &d))
                 )));
             }
             Some(_) => {}
@@ -277,6 +276,41 @@ fn transform_iso(t: &crate::io::msgs::TransformStamped, at: &At) -> Result<Iso3,
 /// Largest difference of fx, fy, cx or cy (pixels) between two CameraInfos taken as the same
 /// camera.
 pub const CAMERA_TOLERANCE_PX: f64 = 0.05;
+
+/// What differs between two cameras, each as `name old -> new` (every value in full
+/// precision where the change is below the printed precision).
+fn camera_changes(a: (&Camera, &Distortion), b: (&Camera, &Distortion)) -> String {
+    let (c0, d0) = a;
+    let (c1, d1) = b;
+    let mut out = Vec::new();
+    if (c0.width, c0.height) != (c1.width, c1.height) {
+        out.push(format!(
+            "{} x {} -> {} x {}",
+            c0.width, c0.height, c1.width, c1.height
+        ));
+    }
+    let values = |c: &Camera, d: &Distortion| {
+        [
+            ("fx", c.fx),
+            ("fy", c.fy),
+            ("cx", c.cx),
+            ("cy", c.cy),
+            ("k1", d.k1),
+            ("k2", d.k2),
+            ("p1", d.p1),
+            ("p2", d.p2),
+            ("k3", d.k3),
+        ]
+    };
+    for ((name, x), (_, y)) in values(c0, d0).into_iter().zip(values(c1, d1)) {
+        // Intrinsics may differ by rounding (CAMERA_TOLERANCE_PX); distortion may not.
+        let px = name.starts_with('f') || name.starts_with('c');
+        if (px && (x - y).abs() > CAMERA_TOLERANCE_PX) || (!px && x != y) {
+            out.push(format!("{name} {x} -> {y}"));
+        }
+    }
+    out.join(", ")
+}
 
 fn same_camera(a: &Camera, b: &Camera) -> bool {
     (a.width, a.height) == (b.width, b.height)
@@ -386,4 +420,31 @@ pub fn load_session(reader: &SessionReader) -> Result<SessionData, ReplayError> 
         ground_truth: c.ground_truth,
         warnings: c.warnings,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The error names what changed, and only that: a focal length beyond the rounding
+    /// tolerance and a distortion coefficient, not the centre that moved within it.
+    #[test]
+    fn a_camera_change_names_the_values_that_changed() {
+        let a = Camera::with_hfov(256, 240, 1.0);
+        let b = Camera {
+            fy: a.fy + 0.5,
+            cx: a.cx + 0.5 * CAMERA_TOLERANCE_PX,
+            ..a
+        };
+        let d = Distortion {
+            k3: 1e-6,
+            ..Distortion::default()
+        };
+        assert_eq!(
+            camera_changes((&a, &Distortion::default()), (&b, &d)),
+            format!("fy {} -> {}, k3 0 -> 0.000001", a.fy, a.fy + 0.5)
+        );
+        let c = Camera { width: 128, ..a };
+        assert_eq!(camera_changes((&a, &d), (&c, &d)), "256 x 240 -> 128 x 240");
+    }
 }
