@@ -93,8 +93,12 @@ pub fn read_report(path: &std::path::Path) -> anyhow::Result<Report> {
                 version.map_or_else(|| "missing".to_string(), |v| v.to_string())
             );
         }
-        serde_json::from_value(value)
-            .with_context(|| format!("{}: not an objloc fuse report", path.display()))
+        let report: Report = serde_json::from_value(value)
+            .with_context(|| format!("{}: not an objloc fuse report", path.display()))?;
+        report
+            .check()
+            .map_err(|what| anyhow::anyhow!("{}: inconsistent report: {what}", path.display()))?;
+        Ok(report)
     }
 }
 

@@ -629,5 +629,30 @@ mod tests {
         assert!((t.fused_ate_m - (0.16f64 / 2.0).sqrt()).abs() < 1e-12);
         assert!((t.odometry_max_m - 0.3).abs() < 1e-12);
         assert!(trajectory_error(&report, &PoseTrack::default()).is_none());
+        // The report is one fuse could write; edited, it is not (found by fuzzing `eval`).
+        assert_eq!(report.check(), Ok(()));
+        let mut bad = report.clone();
+        bad.object_cells = vec![0, 1];
+        assert_eq!(
+            bad.check(),
+            Err("object_cells holds cell 1, outside the 1 cells of a [1, 1, 1] grid".into())
+        );
+        let mut bad = report.clone();
+        bad.per_frame[2].index = 1;
+        assert!(
+            bad.check()
+                .unwrap_err()
+                .contains("per_frame index 1 after 1")
+        );
+        let mut bad = report.clone();
+        bad.grid.stored_cells = 513;
+        assert!(
+            bad.check()
+                .unwrap_err()
+                .contains("stored_cells 513 exceeds the 512")
+        );
+        let mut bad = report;
+        bad.grid.dims = [1, 0, 1];
+        assert_eq!(bad.check(), Err("grid.dims [1, 0, 1] is not a grid".into()));
     }
 }

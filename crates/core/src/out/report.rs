@@ -172,6 +172,57 @@ impl Report {
         }
     }
 
+    /// Whether the report is one `fuse` could have written, in words when not: a grid of
+    /// positive size, object cells inside it, frames in order and within the session. What
+    /// reads a report (`eval`) checks this first, so an edited or damaged one is an error,
+    /// not a silently wrong score.
+    pub fn check(&self) -> Result<(), String> {
+        let g = &self.grid;
+        let cells = g.dims.iter().try_fold(1u64, |n, &d| {
+            (d >= 1).then(|| n.checked_mul(d as u64)).flatten()
+        });
+        let Some(cells) = cells else {
+            return Err(format!("grid.dims {:?} is not a grid", g.dims));
+        };
+        if !(g.voxel_size_m.is_finite() && g.voxel_size_m > 0.0)
+            || !g.origin_m.iter().all(|x| x.is_finite())
+            || !(g.prior > 0.0 && g.prior < 1.0)
+        {
+            return Err(format!(
+                "grid voxel {} m, origin {:?}, prior {}: not a grid's",
+                g.voxel_size_m, g.origin_m, g.prior
+            ));
+        }
+        // Stored blocks are counted whole, so they may reach past the grid's far faces.
+        let block = |d: usize| d.div_ceil(8) as u64 * 8;
+        let block_cells = block(g.dims[0]) * block(g.dims[1]) * block(g.dims[2]);
+        if g.stored_cells > block_cells {
+            return Err(format!(
+                "grid.stored_cells {} exceeds the {block_cells} cells of a {:?} grid's blocks",
+                g.stored_cells, g.dims
+            ));
+        }
+        if let Some(c) = self.object_cells.iter().find(|&&c| c as u64 >= cells) {
+            return Err(format!(
+                "object_cells holds cell {c}, outside the {cells} cells of a {:?} grid",
+                g.dims
+            ));
+        }
+        let mut last = None;
+        for f in &self.per_frame {
+            if last.is_some_and(|l| f.index <= l) || f.index >= self.frames_in_session {
+                return Err(format!(
+                    "per_frame index {} after {} in a session of {} frames: frames out of order",
+                    f.index,
+                    last.map_or_else(|| "none".to_owned(), |l: usize| l.to_string()),
+                    self.frames_in_session
+                ));
+            }
+            last = Some(f.index);
+        }
+        Ok(())
+    }
+
     /// The report as pretty-printed JSON (empty if it does not serialize).
     pub fn to_json(&self) -> String {
         serde_json::to_string_pretty(self).unwrap_or_default()
