@@ -42,6 +42,10 @@ struct ScanState {
     fed_bytes: u64,
     /// Whether the file ends with the MCAP magic (written to the end: not truncated).
     ends_with_magic: bool,
+    /// Messages met, indexed or not.
+    scanned: u64,
+    /// The message count of the summary's Statistics record, when the file has one.
+    stated: Option<u64>,
 }
 
 /// Whether a scan step lets the scan go on.
@@ -161,6 +165,18 @@ impl SessionReader {
                 break;
             }
         }
+        // A file written to the end whose summary counts other messages than it holds has
+        // lost (or gained) records since: a chunk cut out leaves no other trace in a scan.
+        if let Some(n) = st
+            .stated
+            .filter(|&n| n != st.scanned && self.warnings.is_empty())
+        {
+            self.warnings.push(format!(
+                "{}: its summary counts {n} messages, the file holds {}: records are missing or were added after the summary was written",
+                self.path.display(),
+                st.scanned
+            ));
+        }
         if self.channels.is_empty() && self.messages.is_empty() && self.warnings.is_empty() {
             self.warnings
                 .push("file holds no channels and no messages".to_owned());
@@ -192,6 +208,9 @@ impl SessionReader {
         body_len: usize,
         st: &mut ScanState,
     ) -> Result<(), SessionError> {
+        if let Record::Statistics(stats) = &record {
+            st.stated = Some(stats.message_count);
+        }
         if let Record::Message { header, data } = &record {
             // The payload is the tail of the record's body, after the message header.
             let span = ByteSpan {
@@ -347,6 +366,7 @@ impl SessionReader {
         loc: u64,
         st: &mut ScanState,
     ) -> Result<(), SessionError> {
+        st.scanned += 1;
         let prev = st.last_time.insert(header.channel_id, header.log_time);
         if let Some(prev) = prev.filter(|p| *p > header.log_time) {
             let topic = self

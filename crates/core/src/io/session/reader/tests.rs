@@ -651,3 +651,35 @@ fn a_record_that_does_not_parse_is_a_one_line_error() {
     );
     assert!(!chain.contains(['\n', '\u{1b}', '━']), "{chain}");
 }
+
+/// A chunk cut out of a file that is otherwise whole leaves the scan nothing to trip on; the
+/// summary's message count tells: a warning naming both counts. The whole file has none.
+#[test]
+fn a_chunk_cut_out_is_told_by_the_summarys_count() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("whole.mcap");
+    let bytes = write(&path, small_chunks(), &increasing(600));
+    assert!(
+        SessionReader::open(&path, Topics::default())
+            .unwrap()
+            .warnings
+            .is_empty()
+    );
+    let chunk = chunk_indexes(&bytes)[2].clone();
+    let start = usize::try_from(chunk.chunk_start_offset).unwrap();
+    let end = start + usize::try_from(chunk.chunk_length).unwrap();
+    let mut cut = bytes[..start].to_vec();
+    cut.extend_from_slice(&bytes[end..]);
+    let cut_path = dir.path().join("cut.mcap");
+    std::fs::write(&cut_path, &cut).unwrap();
+    let reader = SessionReader::open(&cut_path, Topics::default()).unwrap();
+    let held = reader.index().len();
+    assert!(held < 600, "{held}");
+    assert_eq!(
+        reader.warnings,
+        vec![format!(
+            "{}: its summary counts 600 messages, the file holds {held}: records are missing or were added after the summary was written",
+            cut_path.display()
+        )]
+    );
+}
