@@ -511,3 +511,53 @@ fn image_size_differing_from_camera_info_is_a_warning() {
         run.stdout
     );
 }
+
+/// A CameraInfo that changes mid-session: `inspect` warns once, naming what changed and when
+/// (found by fuzzing: it said nothing, and fuse's error printed values that were equal).
+#[test]
+fn a_camera_info_that_changes_is_a_warning_naming_the_change() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("camera.mcap");
+    let mut w = SessionWriter::create(&path).unwrap();
+    let info = |fy: f64, k3: f64| {
+        let mut ci = objloc_core::io::msgs::CameraInfo::pinhole(
+            Header::new(T0_NS, "camera_optical_frame"),
+            64,
+            48,
+            50.0,
+            fy,
+            32.0,
+            24.0,
+        );
+        ci.distortion_model = "plumb_bob".into();
+        ci.d = vec![0.0, 0.0, 0.0, 0.0, k3];
+        ci
+    };
+    // Within the rounding tolerance, then a new k3 (warned), then a new fy (not again).
+    for (k, (fy, k3)) in [(50.0, 0.0), (50.01, 0.0), (50.0, 1e-6), (51.0, 0.0)]
+        .into_iter()
+        .enumerate()
+    {
+        let t = T0_NS + k as i64 * 1_000_000_000;
+        w.write("/camera/camera_info", t, &info(fy, k3)).unwrap();
+        w.write("/camera/image/compressed", t, &image(t, fixture_png(0)))
+            .unwrap();
+    }
+    w.finish().unwrap();
+    let run = inspect(&path, false);
+    assert_eq!(run.code, Some(0), "{}", run.stderr);
+    let warned: Vec<&str> = run
+        .stdout
+        .lines()
+        .filter(|l| l.contains("CameraInfo changes"))
+        .collect();
+    assert_eq!(
+        warned,
+        vec![format!(
+            "warning: /camera/camera_info at {}: CameraInfo changes (k3 0 -> 0.000001); fuse takes one camera and refuses this session",
+            objloc_core::io::session::fmt_ns((T0_NS + 2_000_000_000) as u64)
+        )],
+        "{}",
+        run.stdout
+    );
+}

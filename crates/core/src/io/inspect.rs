@@ -19,6 +19,7 @@ use serde::Serialize;
 
 use crate::io::session::{Role, SessionError, SessionMsg, SessionReader, Topics, fmt_ns};
 use crate::types::geometry::Camera;
+use crate::types::lens::{Distortion, camera_changes};
 
 /// One channel of the file, as `objloc inspect` lists it.
 #[derive(Debug, Clone, Serialize, PartialEq)]
@@ -218,6 +219,10 @@ struct Scan {
     intrinsics: Option<Camera>,
     /// Image size of the last CameraInfo.
     info_size: Option<(u32, u32)>,
+    /// The first usable CameraInfo's camera and distortion, and whether a later one was
+    /// seen to differ (warned once).
+    first_camera: Option<(Camera, Distortion)>,
+    camera_changed: bool,
     labels: Vec<LabelSeen>,
     /// Ground-truth object names, in first-appearance order.
     gt_objects: Vec<String>,
@@ -226,6 +231,30 @@ struct Scan {
     frames: Vec<usize>,
     /// Warnings about single messages, in replay order.
     warnings: Vec<String>,
+}
+
+impl Scan {
+    /// Warns (once) when a CameraInfo differs from the first usable one: `fuse` refuses such
+    /// a session, so `inspect` says which values change, and when.
+    fn check_camera(&mut self, ci: &crate::io::msgs::CameraInfo, topic: &str, log_time_ns: u64) {
+        let (Some(cam), Ok(d)) = (Camera::from_info(ci), Distortion::from_info(ci)) else {
+            return;
+        };
+        let Some(first) = &self.first_camera else {
+            self.first_camera = Some((cam, d));
+            return;
+        };
+        if self.camera_changed {
+            return;
+        }
+        if let Some(what) = camera_changes((&first.0, &first.1), (&cam, &d)) {
+            self.camera_changed = true;
+            self.warnings.push(format!(
+                "{topic} at {}: CameraInfo changes ({what}); fuse takes one camera and refuses this session",
+                fmt_ns(log_time_ns)
+            ));
+        }
+    }
 }
 
 /// Decodes every session-role message in replay order; fails on the first that does not
@@ -254,6 +283,7 @@ fn scan(reader: &SessionReader) -> Result<Scan, SessionError> {
             }
             SessionMsg::CameraInfo(ci) => {
                 s.info_size = Some((ci.width, ci.height));
+                s.check_camera(&ci, &m.topic, m.log_time_ns);
                 if s.intrinsics.is_none() {
                     s.intrinsics = Camera::from_info(&ci);
                     if s.intrinsics.is_none() {

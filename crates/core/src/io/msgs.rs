@@ -696,6 +696,31 @@ impl crate::types::geometry::Camera {
     }
 }
 
+impl crate::types::lens::Distortion {
+    /// The distortion a CameraInfo declares, or why objloc cannot represent it: `plumb_bob`
+    /// and `rational_polynomial` (with its k4..k6 zero) are radial-tangential; any model with
+    /// all coefficients zero is none.
+    pub fn from_info(ci: &CameraInfo) -> Result<Self, String> {
+        if ci.d.iter().all(|v| *v == 0.0) {
+            return Ok(Self::default());
+        }
+        if !ci.d.iter().all(|v| v.is_finite()) {
+            return Err(format!("CameraInfo d {:?} is not finite", ci.d));
+        }
+        let model = ci.distortion_model.as_str();
+        let radial_tangential = model == "plumb_bob"
+            || (model == "rational_polynomial" && ci.d.iter().skip(5).all(|v| *v == 0.0));
+        if !radial_tangential || ci.d.len() > 8 {
+            return Err(format!(
+                "CameraInfo distortion model {model:?} with d {:?} cannot be represented (objloc \
+                 handles plumb_bob, the OpenCV radial-tangential model)",
+                ci.d
+            ));
+        }
+        Ok(Self::from_plumb_bob(&ci.d))
+    }
+}
+
 /// Pose from a ROS `Pose`; `None` if a value is not finite or the quaternion is degenerate.
 pub fn iso_from_pose(p: &Pose) -> Option<crate::types::geometry::Iso3> {
     crate::types::geometry::iso_from_parts(p.position, p.orientation_xyzw)

@@ -184,10 +184,10 @@ impl Report {
         let Some(cells) = cells else {
             return Err(format!("grid.dims {:?} is not a grid", g.dims));
         };
-        if !(g.voxel_size_m.is_finite() && g.voxel_size_m > 0.0)
-            || !g.origin_m.iter().all(|x| x.is_finite())
-            || !(g.prior > 0.0 && g.prior < 1.0)
-        {
+        let finite_grid = g.voxel_size_m.is_finite()
+            && g.voxel_size_m > 0.0
+            && g.origin_m.iter().all(|x| x.is_finite());
+        if !(finite_grid && g.prior > 0.0 && g.prior < 1.0) {
             return Err(format!(
                 "grid voxel {} m, origin {:?}, prior {}: not a grid's",
                 g.voxel_size_m, g.origin_m, g.prior

@@ -171,9 +171,80 @@ impl Rectifier {
     }
 }
 
+/// Largest difference of fx, fy, cx or cy (pixels) between two CameraInfos taken as the same
+/// camera (calibrations decomposed per view differ by rounding).
+pub const CAMERA_TOLERANCE_PX: f64 = 0.05;
+
+/// What differs between two cameras, each as `name old -> new`, or None when they are the
+/// same camera: the size and distortion exactly, the intrinsics within
+/// [`CAMERA_TOLERANCE_PX`].
+pub fn camera_changes(a: (&Camera, &Distortion), b: (&Camera, &Distortion)) -> Option<String> {
+    let (c0, d0) = a;
+    let (c1, d1) = b;
+    let mut out = Vec::new();
+    if (c0.width, c0.height) != (c1.width, c1.height) {
+        out.push(format!(
+            "{} x {} -> {} x {}",
+            c0.width, c0.height, c1.width, c1.height
+        ));
+    }
+    let values = |c: &Camera, d: &Distortion| {
+        [
+            ("fx", c.fx),
+            ("fy", c.fy),
+            ("cx", c.cx),
+            ("cy", c.cy),
+            ("k1", d.k1),
+            ("k2", d.k2),
+            ("p1", d.p1),
+            ("p2", d.p2),
+            ("k3", d.k3),
+        ]
+    };
+    for ((name, x), (_, y)) in values(c0, d0).into_iter().zip(values(c1, d1)) {
+        let px = name.starts_with('f') || name.starts_with('c');
+        if (px && (x - y).abs() > CAMERA_TOLERANCE_PX) || (!px && x != y) {
+            out.push(format!("{name} {x} -> {y}"));
+        }
+    }
+    (!out.is_empty()).then(|| out.join(", "))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A change names what changed, and only that: a focal length beyond the rounding
+    /// tolerance and a distortion coefficient, not the centre that moved within it.
+    #[test]
+    fn a_camera_change_names_the_values_that_changed() {
+        let a = Camera::with_hfov(256, 240, 1.0);
+        let b = Camera {
+            fy: a.fy + 0.5,
+            cx: a.cx + 0.5 * CAMERA_TOLERANCE_PX,
+            ..a
+        };
+        let none = Distortion::default();
+        let d = Distortion { k3: 1e-6, ..none };
+        assert_eq!(
+            camera_changes((&a, &none), (&b, &d)),
+            Some(format!("fy {} -> {}, k3 0 -> 0.000001", a.fy, a.fy + 0.5))
+        );
+        let c = Camera { width: 128, ..a };
+        assert_eq!(
+            camera_changes((&a, &d), (&c, &d)),
+            Some("256 x 240 -> 128 x 240".into())
+        );
+        assert_eq!(
+            camera_changes((&a, &d), (&b, &d)),
+            Some(format!("fy {} -> {}", a.fy, a.fy + 0.5))
+        );
+        let same = Camera {
+            cx: a.cx + 0.5 * CAMERA_TOLERANCE_PX,
+            ..a
+        };
+        assert_eq!(camera_changes((&a, &d), (&same, &d)), None);
+    }
 
     #[test]
     fn undistortion_inverts_distortion_over_the_image() {

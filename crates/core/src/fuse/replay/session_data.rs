@@ -4,7 +4,7 @@ use crate::io::msgs::GroundTruth;
 use crate::io::msgs::iso_from_pose;
 use crate::io::session::{At, Role, SessionMsg, SessionReader, TimedMsg};
 use crate::types::geometry::{Camera, Iso3, iso_from_parts};
-use crate::types::lens::{Distortion, Rectifier};
+use crate::types::lens::{Distortion, Rectifier, camera_changes};
 
 use super::tf::{TfError, TfTree};
 use crate::types::track::PoseTrack;
@@ -203,7 +203,8 @@ impl Collected {
     }
 
     /// Takes one CameraInfo: the first sets the camera; later ones must agree with it to
-    /// [`CAMERA_TOLERANCE_PX`] (calibrations decomposed per view differ by rounding).
+    /// [`crate::types::lens::CAMERA_TOLERANCE_PX`] (calibrations decomposed per view differ by
+    /// rounding).
     fn take_camera(&mut self, ci: &crate::io::msgs::CameraInfo, at: At) -> Result<(), ReplayError> {
         let invalid = |what: String| ReplayError::Invalid {
             at: at.clone(),
@@ -215,16 +216,16 @@ impl Collected {
                 ci.width, ci.height, ci.k
             ))
         })?;
-        let d = distortion_of(ci).map_err(invalid)?;
+        let d = Distortion::from_info(ci).map_err(invalid)?;
         match &self.camera {
             None => self.camera = Some((cam, d, ci.header.frame_id.clone())),
-            Some((c, d0, _)) if !same_camera(c, &cam) || *d0 != d => {
-                return Err(invalid(format!(
-                    "CameraInfo changes during the session ({}); objloc fuses one camera",
-                    camera_changes((c, d0), (&cam, &d))
-                )));
+            Some((c, d0, _)) => {
+                if let Some(what) = camera_changes((c, d0), (&cam, &d)) {
+                    return Err(invalid(format!(
+                        "CameraInfo changes during the session ({what}); objloc fuses one camera"
+                    )));
+                }
             }
-            Some(_) => {}
         }
         Ok(())
     }
@@ -271,75 +272,6 @@ fn transform_iso(t: &crate::io::msgs::TransformStamped, at: &At) -> Result<Iso3,
             t.header.frame_id, t.child_frame_id
         ),
     })
-}
-
-/// Largest difference of fx, fy, cx or cy (pixels) between two CameraInfos taken as the same
-/// camera.
-pub const CAMERA_TOLERANCE_PX: f64 = 0.05;
-
-/// What differs between two cameras, each as `name old -> new` (every value in full
-/// precision where the change is below the printed precision).
-fn camera_changes(a: (&Camera, &Distortion), b: (&Camera, &Distortion)) -> String {
-    let (c0, d0) = a;
-    let (c1, d1) = b;
-    let mut out = Vec::new();
-    if (c0.width, c0.height) != (c1.width, c1.height) {
-        out.push(format!(
-            "{} x {} -> {} x {}",
-            c0.width, c0.height, c1.width, c1.height
-        ));
-    }
-    let values = |c: &Camera, d: &Distortion| {
-        [
-            ("fx", c.fx),
-            ("fy", c.fy),
-            ("cx", c.cx),
-            ("cy", c.cy),
-            ("k1", d.k1),
-            ("k2", d.k2),
-            ("p1", d.p1),
-            ("p2", d.p2),
-            ("k3", d.k3),
-        ]
-    };
-    for ((name, x), (_, y)) in values(c0, d0).into_iter().zip(values(c1, d1)) {
-        // Intrinsics may differ by rounding (CAMERA_TOLERANCE_PX); distortion may not.
-        let px = name.starts_with('f') || name.starts_with('c');
-        if (px && (x - y).abs() > CAMERA_TOLERANCE_PX) || (!px && x != y) {
-            out.push(format!("{name} {x} -> {y}"));
-        }
-    }
-    out.join(", ")
-}
-
-fn same_camera(a: &Camera, b: &Camera) -> bool {
-    (a.width, a.height) == (b.width, b.height)
-        && [a.fx - b.fx, a.fy - b.fy, a.cx - b.cx, a.cy - b.cy]
-            .iter()
-            .all(|d| d.abs() <= CAMERA_TOLERANCE_PX)
-}
-
-/// The distortion a CameraInfo declares, or why objloc cannot represent it: `plumb_bob` and
-/// `rational_polynomial` (with its k4..k6 zero) are radial-tangential; any model with all
-/// coefficients zero is none.
-fn distortion_of(ci: &crate::io::msgs::CameraInfo) -> Result<Distortion, String> {
-    if ci.d.iter().all(|v| *v == 0.0) {
-        return Ok(Distortion::default());
-    }
-    if !ci.d.iter().all(|v| v.is_finite()) {
-        return Err(format!("CameraInfo d {:?} is not finite", ci.d));
-    }
-    let model = ci.distortion_model.as_str();
-    let radial_tangential = model == "plumb_bob"
-        || (model == "rational_polynomial" && ci.d.iter().skip(5).all(|v| *v == 0.0));
-    if !radial_tangential || ci.d.len() > 8 {
-        return Err(format!(
-            "CameraInfo distortion model {model:?} with d {:?} cannot be represented (objloc \
-             handles plumb_bob, the OpenCV radial-tangential model)",
-            ci.d
-        ));
-    }
-    Ok(Distortion::from_plumb_bob(&ci.d))
 }
 
 /// Pass 1: reads and validates everything but pixels.
@@ -420,31 +352,4 @@ pub fn load_session(reader: &SessionReader) -> Result<SessionData, ReplayError> 
         ground_truth: c.ground_truth,
         warnings: c.warnings,
     })
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// The error names what changed, and only that: a focal length beyond the rounding
-    /// tolerance and a distortion coefficient, not the centre that moved within it.
-    #[test]
-    fn a_camera_change_names_the_values_that_changed() {
-        let a = Camera::with_hfov(256, 240, 1.0);
-        let b = Camera {
-            fy: a.fy + 0.5,
-            cx: a.cx + 0.5 * CAMERA_TOLERANCE_PX,
-            ..a
-        };
-        let d = Distortion {
-            k3: 1e-6,
-            ..Distortion::default()
-        };
-        assert_eq!(
-            camera_changes((&a, &Distortion::default()), (&b, &d)),
-            format!("fy {} -> {}, k3 0 -> 0.000001", a.fy, a.fy + 0.5)
-        );
-        let c = Camera { width: 128, ..a };
-        assert_eq!(camera_changes((&a, &d), (&c, &d)), "256 x 240 -> 128 x 240");
-    }
 }
