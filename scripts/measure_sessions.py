@@ -16,7 +16,8 @@ TRAIN_FLAGS in the environment are passed to `objloc train`.
 
 Usage: scripts/measure_sessions.py [--sets shipped,heldout,foreign] [--modes default,objects,odom]
        [--json OUT.json] [-- extra fuse flags...]        (from the repository root)
-Stdlib only; calls target/release/objloc (built if missing).
+Stdlib only; calls target/release/objloc (built if missing), or the binary OBJLOC_BIN names
+(to measure another build while this tree is rebuilt).
 """
 import argparse
 import concurrent.futures as cf

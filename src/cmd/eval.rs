@@ -95,9 +95,7 @@ pub fn read_report(path: &std::path::Path) -> anyhow::Result<Report> {
         }
         let report: Report = serde_json::from_value(value)
             .with_context(|| format!("{}: not an objloc fuse report", path.display()))?;
-        report
-            .check()
-            .map_err(|what| anyhow::anyhow!("{}: inconsistent report: {what}", path.display()))?;
+        report.check().with_context(|| path.display().to_string())?;
         Ok(report)
     }
 }

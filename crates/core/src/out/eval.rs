@@ -567,8 +567,8 @@ mod tests {
         assert_eq!(voxel_iou(&spec, &inside[..32], &truth), 0.5);
     }
 
-    #[test]
-    fn trajectory_error_is_the_rmse_at_the_frames() {
+    /// A report of three frames at 1.0, 2.04 and 2.9 s, fused at poses other than /odom's.
+    fn three_frame_report() -> crate::out::report::Report {
         use crate::fuse::replay::{FrameSummary, FuseOptions};
         use crate::out::report::{GridReport, REPORT_VERSION, Report};
         let frame = |index: usize, stamp_ns: i64, odom: [f64; 3], used: [f64; 3]| FrameSummary {
@@ -584,7 +584,7 @@ mod tests {
             max_probability: 0.5,
             objects: Vec::new(),
         };
-        let report = Report {
+        Report {
             report_version: REPORT_VERSION,
             objloc_version: "test".into(),
             session: "s".into(),
@@ -617,7 +617,12 @@ mod tests {
             refinement: None,
             warnings: Vec::new(),
             timing_ms: Default::default(),
-        };
+        }
+    }
+
+    #[test]
+    fn trajectory_error_is_the_rmse_at_the_frames() {
+        let report = three_frame_report();
         let truth = PoseTrack::new(vec![
             (1_000_000_000, iso_from_xy_yaw(0.0, 0.0, 0.0)),
             (2_000_000_000, iso_from_xy_yaw(1.0, 0.0, 0.0)),
@@ -629,30 +634,65 @@ mod tests {
         assert!((t.fused_ate_m - (0.16f64 / 2.0).sqrt()).abs() < 1e-12);
         assert!((t.odometry_max_m - 0.3).abs() < 1e-12);
         assert!(trajectory_error(&report, &PoseTrack::default()).is_none());
-        // The report is one fuse could write; edited, it is not (found by fuzzing `eval`).
-        assert_eq!(report.check(), Ok(()));
+    }
+
+    /// Found by fuzzing `eval`: an edited report was scored (IoU 0, exit 0).
+    #[test]
+    fn report_check_rejects_what_fuse_cannot_write() {
+        let report = three_frame_report();
+        let why = |r: &Report| r.check().map_err(|e| e.to_string());
+        assert_eq!(why(&report), Ok(()));
         let mut bad = report.clone();
         bad.object_cells = vec![0, 1];
         assert_eq!(
-            bad.check(),
-            Err("object_cells holds cell 1, outside the 1 cells of a [1, 1, 1] grid".into())
+            why(&bad),
+            Err("inconsistent report: object_cells holds cell 1, outside the 1 cells of a [1, 1, 1] grid".into())
+        );
+        bad.object_cells = vec![0, 0];
+        assert!(
+            why(&bad)
+                .unwrap_err()
+                .ends_with("cell 0 after 0: not ascending, each once")
         );
         let mut bad = report.clone();
         bad.per_frame[2].index = 1;
         assert!(
-            bad.check()
+            why(&bad)
                 .unwrap_err()
-                .contains("per_frame index 1 after 1")
+                .ends_with("per_frame index 1 after 1: frames out of order")
+        );
+        bad.per_frame[2].index = 3;
+        assert!(
+            why(&bad)
+                .unwrap_err()
+                .ends_with("per_frame index 3 is beyond the session's 3 frames")
         );
         let mut bad = report.clone();
         bad.grid.stored_cells = 513;
         assert!(
-            bad.check()
+            why(&bad)
                 .unwrap_err()
                 .contains("stored_cells 513 exceeds the 512")
         );
-        let mut bad = report;
+        let mut bad = report.clone();
         bad.grid.dims = [1, 0, 1];
-        assert_eq!(bad.check(), Err("grid.dims [1, 0, 1] is not a grid".into()));
+        assert!(
+            why(&bad)
+                .unwrap_err()
+                .ends_with("grid.dims [1, 0, 1] is not a grid fuse can make")
+        );
+        // Beyond fuse's block table (2^30 blocks), and where the product would overflow.
+        bad.grid.dims = [8 << 20, 8 << 20, 8];
+        assert!(
+            why(&bad)
+                .unwrap_err()
+                .contains("is not a grid fuse can make")
+        );
+        bad.grid.dims = [usize::MAX, usize::MAX, 1];
+        assert!(
+            why(&bad)
+                .unwrap_err()
+                .contains("is not a grid fuse can make")
+        );
     }
 }

@@ -124,6 +124,11 @@ pub fn file_sha256(path: &Path) -> std::io::Result<String> {
     crate::types::digest::sha256_hex_of_reader(std::fs::File::open(path)?)
 }
 
+/// A report `fuse` could not have written ([`Report::check`]): what is wrong, in words.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("inconsistent report: {0}")]
+pub struct ReportInconsistent(pub String);
+
 impl Report {
     /// The report of a replay's `outcome` fused with `options`; `session` and `model` are paths,
     /// the hashes hex SHA-256 of their files.
@@ -172,18 +177,32 @@ impl Report {
         }
     }
 
-    /// Whether the report is one `fuse` could have written, in words when not: a grid of
-    /// positive size, object cells inside it, frames in order and within the session. What
-    /// reads a report (`eval`) checks this first, so an edited or damaged one is an error,
-    /// not a silently wrong score.
-    pub fn check(&self) -> Result<(), String> {
+    /// Whether the report is one `fuse` could have written, and what is wrong when not: a
+    /// grid within fuse's limits, object cells inside it (ascending, each once), frames in
+    /// order and within the session, unverified frames among them. What reads a report
+    /// (`eval`) checks this first, so an edited or damaged one is an error, not a silently
+    /// wrong score.
+    pub fn check(&self) -> Result<(), ReportInconsistent> {
+        let cells = self.check_grid().map_err(ReportInconsistent)?;
+        self.check_cells_and_frames(cells)
+            .map_err(ReportInconsistent)
+    }
+
+    /// The grid's checks; its nominal cell count.
+    fn check_grid(&self) -> Result<u64, String> {
         let g = &self.grid;
-        let cells = g.dims.iter().try_fold(1u64, |n, &d| {
-            (d >= 1).then(|| n.checked_mul(d as u64)).flatten()
-        });
-        let Some(cells) = cells else {
-            return Err(format!("grid.dims {:?} is not a grid", g.dims));
-        };
+        let not_a_grid = || format!("grid.dims {:?} is not a grid fuse can make", g.dims);
+        if g.dims.contains(&0) {
+            return Err(not_a_grid());
+        }
+        // fuse's own limit: the block table (4 bytes a block) within MAX_GRID_BYTES.
+        let blocks = g
+            .dims
+            .iter()
+            .try_fold(1u64, |n, &d| n.checked_mul(d.div_ceil(8) as u64))
+            .filter(|&b| b.saturating_mul(4) <= crate::fuse::grid::MAX_GRID_BYTES)
+            .ok_or_else(not_a_grid)?;
+        let cells = g.dims.iter().map(|&d| d as u64).product::<u64>();
         let finite_grid = g.voxel_size_m.is_finite()
             && g.voxel_size_m > 0.0
             && g.origin_m.iter().all(|x| x.is_finite());
@@ -194,31 +213,57 @@ impl Report {
             ));
         }
         // Stored blocks are counted whole, so they may reach past the grid's far faces.
-        let block = |d: usize| d.div_ceil(8) as u64 * 8;
-        let block_cells = block(g.dims[0]) * block(g.dims[1]) * block(g.dims[2]);
-        if g.stored_cells > block_cells {
+        if g.stored_cells > blocks * 512 {
             return Err(format!(
-                "grid.stored_cells {} exceeds the {block_cells} cells of a {:?} grid's blocks",
-                g.stored_cells, g.dims
-            ));
-        }
-        if let Some(c) = self.object_cells.iter().find(|&&c| c as u64 >= cells) {
-            return Err(format!(
-                "object_cells holds cell {c}, outside the {cells} cells of a {:?} grid",
+                "grid.stored_cells {} exceeds the {} cells of a {:?} grid's blocks",
+                g.stored_cells,
+                blocks * 512,
                 g.dims
             ));
         }
-        let mut last = None;
+        Ok(cells)
+    }
+
+    /// The object cells' and the frames' checks, in a grid of `cells` cells.
+    fn check_cells_and_frames(&self, cells: u64) -> Result<(), String> {
+        if let Some(c) = self.object_cells.iter().find(|&&c| c as u64 >= cells) {
+            return Err(format!(
+                "object_cells holds cell {c}, outside the {cells} cells of a {:?} grid",
+                self.grid.dims
+            ));
+        }
+        if let Some(w) = self.object_cells.windows(2).find(|w| w[1] <= w[0]) {
+            return Err(format!(
+                "object_cells holds cell {} after {}: not ascending, each once",
+                w[1], w[0]
+            ));
+        }
+        let n = self.frames_in_session;
+        let mut last: Option<usize> = None;
         for f in &self.per_frame {
-            if last.is_some_and(|l| f.index <= l) || f.index >= self.frames_in_session {
+            if f.index >= n {
                 return Err(format!(
-                    "per_frame index {} after {} in a session of {} frames: frames out of order",
-                    f.index,
-                    last.map_or_else(|| "none".to_owned(), |l: usize| l.to_string()),
-                    self.frames_in_session
+                    "per_frame index {} is beyond the session's {n} frames",
+                    f.index
+                ));
+            }
+            if let Some(l) = last.filter(|&l| f.index <= l) {
+                return Err(format!(
+                    "per_frame index {} after {l}: frames out of order",
+                    f.index
                 ));
             }
             last = Some(f.index);
+        }
+        let fused: Vec<usize> = self.per_frame.iter().map(|f| f.index).collect();
+        let unverified = self.refinement.iter().flat_map(|r| &r.detections_only);
+        if let Some(i) = unverified
+            .into_iter()
+            .find(|i| fused.binary_search(i).is_err())
+        {
+            return Err(format!(
+                "refinement.detections_only names frame {i}, which per_frame does not hold"
+            ));
         }
         Ok(())
     }

@@ -1,5 +1,6 @@
 //! Lens distortion (OpenCV's radial-tangential model, ROS CameraInfo `plumb_bob`) and the
-//! rectification of a distorted image to the ideal pinhole camera with the same K.
+//! rectification of a distorted image to the ideal pinhole camera with the same K; and what
+//! makes two CameraInfos the same camera ([`camera_changes`]).
 //!
 //! Every stage after the replay's decoding sees rectified frames and a pinhole camera, so the
 //! fuser, the pose refinement, the evaluation and the viewer honour the distortion alike; the
@@ -188,22 +189,24 @@ pub fn camera_changes(a: (&Camera, &Distortion), b: (&Camera, &Distortion)) -> O
             c0.width, c0.height, c1.width, c1.height
         ));
     }
+    // (name, value, tolerance): intrinsics may differ by rounding, distortion may not.
+    let t = CAMERA_TOLERANCE_PX;
     let values = |c: &Camera, d: &Distortion| {
         [
-            ("fx", c.fx),
-            ("fy", c.fy),
-            ("cx", c.cx),
-            ("cy", c.cy),
-            ("k1", d.k1),
-            ("k2", d.k2),
-            ("p1", d.p1),
-            ("p2", d.p2),
-            ("k3", d.k3),
+            ("fx", c.fx, t),
+            ("fy", c.fy, t),
+            ("cx", c.cx, t),
+            ("cy", c.cy, t),
+            ("k1", d.k1, 0.0),
+            ("k2", d.k2, 0.0),
+            ("p1", d.p1, 0.0),
+            ("p2", d.p2, 0.0),
+            ("k3", d.k3, 0.0),
         ]
     };
-    for ((name, x), (_, y)) in values(c0, d0).into_iter().zip(values(c1, d1)) {
-        let px = name.starts_with('f') || name.starts_with('c');
-        if (px && (x - y).abs() > CAMERA_TOLERANCE_PX) || (!px && x != y) {
+    for ((name, x, tol), (_, y, _)) in values(c0, d0).into_iter().zip(values(c1, d1)) {
+        // A NaN on either side is a change too.
+        if (x - y).abs() > tol || (x - y).is_nan() {
             out.push(format!("{name} {x} -> {y}"));
         }
     }

@@ -47,15 +47,19 @@ pub(super) fn check_refinement(ctx: &Context<'_>, pass: &Pass) -> RefinementChec
     let floor_better = floor.is_some_and(|[r, o]| o > r * (1.0 + ROLLBACK_TOLERANCE));
     let rolled_back =
         pass.poses != odometry && ((rays_worse && !floor_better) || (floor_worse && !rays_better));
-    let detections_only = pass
-        .per_frame
-        .iter()
-        .filter(|f| {
-            f.correction
-                .is_some_and(|c| c.applied && c.floor_cells == 0)
-        })
-        .map(|f| f.index)
-        .collect();
+    // A rolled-back replay is fused at /odom: none of its corrections stands.
+    let detections_only = if rolled_back {
+        Vec::new()
+    } else {
+        pass.per_frame
+            .iter()
+            .filter(|f| {
+                f.correction
+                    .is_some_and(|c| c.applied && c.floor_cells == 0)
+            })
+            .map(|f| f.index)
+            .collect()
+    };
     RefinementCheck {
         refined_rays: refined,
         odometry_rays: odom,
@@ -96,8 +100,9 @@ pub struct RefinementCheck {
     pub floor_dropped_at: Option<usize>,
     /// Frames whose applied correction came from the detections alone (no floor cell): the
     /// rays this check compares are the evidence those poses were fitted to, so it cannot
-    /// show them worse than /odom. Measured on 48 simulated tours (docs/fuser.md): every
-    /// replay that refinement made worse without being rolled back had such frames.
+    /// show them worse than /odom. Empty when rolled back. Measured on 48 simulated tours
+    /// (docs/fuser.md): 3 of the 4 replays refinement made worse had such frames (the fourth,
+    /// two-chairs 8, had the floor behind every correction).
     #[serde(default)]
     pub detections_only: Vec<usize>,
     /// Whether the replay fell back to /odom.

@@ -239,11 +239,21 @@ impl fmt::Display for At {
 /// The MCAP library's error on one line, for a one-line message: its parser's errors carry
 /// a styled backtrace through the crate's source files (terminal escapes, box drawing, the
 /// build machine's paths), of which only the innermost error says what is wrong.
+/// Other errors keep their causes (an I/O error's "No space left on device"), joined by ": ".
 fn one_line(e: &mcap::McapError) -> String {
-    let text = match e {
+    let mut text = match e {
         mcap::McapError::Parse(p) => format!("record parse failed: {}", p.root_cause()),
         e => e.to_string(),
     };
+    let mut cause = match e {
+        mcap::McapError::Parse(_) => None,
+        e => std::error::Error::source(e),
+    };
+    while let Some(c) = cause {
+        text.push_str(": ");
+        text.push_str(&c.to_string());
+        cause = c.source();
+    }
     text.split_whitespace().collect::<Vec<_>>().join(" ")
 }
 
@@ -686,5 +696,31 @@ mod tests {
             .unwrap();
         assert_eq!(o, image::metadata::Orientation::Rotate90);
         assert_eq!(frame("jpeg", turned).encoded_file(), None);
+    }
+}
+
+#[cfg(test)]
+mod one_line_tests {
+    use super::one_line;
+
+    /// An I/O error's cause stays in the line (mcap's own text for it names none).
+    #[test]
+    fn an_io_error_keeps_its_cause() {
+        let e = mcap::McapError::Io(std::io::Error::new(
+            std::io::ErrorKind::StorageFull,
+            "No space left on device",
+        ));
+        assert_eq!(
+            one_line(&e),
+            format!("{e}: No space left on device")
+                .split_whitespace()
+                .collect::<Vec<_>>()
+                .join(" ")
+        );
+        assert!(
+            one_line(&e).ends_with(": No space left on device"),
+            "{}",
+            one_line(&e)
+        );
     }
 }

@@ -1,5 +1,5 @@
-//! The index pass: one linear read of the file that keeps, per message, its header and where
-//! its payload is, and per chunk its byte range; channels and schemas are taken as met.
+//! The index pass: one linear read of the file that keeps, per indexed message, its header and
+//! where its payload is, and per chunk its byte range; channels and schemas are taken as met.
 //!
 //! Invariants: the outer MCAP reader hands out whole top-level records (chunks undecoded) and
 //! requests exactly the bytes it needs, so the bytes fed to it when it yields a record end that
@@ -98,10 +98,12 @@ pub(super) fn chunk_prefix(body_len: usize) -> [u8; 9] {
 impl SessionReader {
     /// The last message indexed so far (file order), for errors about what follows it.
     fn at_last(&self) -> At {
-        match self.messages.last() {
-            Some(m) => At {
-                topic: self.channels.get(&m.channel_id).map(|c| c.topic.clone()),
-                ..self.at(None, m.log_time_ns)
+        // The last message scanned, indexed or not: under IndexScope::Roles the last indexed
+        // one can lie far before the damage.
+        match self.last_scanned {
+            Some((channel_id, log_time_ns)) => At {
+                topic: self.channels.get(&channel_id).map(|c| c.topic.clone()),
+                ..self.at(None, log_time_ns)
             },
             None => At {
                 path: self.path.clone(),
@@ -188,7 +190,7 @@ impl SessionReader {
     fn parse<'a>(&self, opcode: u8, data: &'a [u8]) -> Result<Record<'a>, SessionError> {
         mcap::parse_record(opcode, data).map_err(|source| SessionError::Mcap {
             at: self.at_last(),
-            what: match self.messages.last() {
+            what: match self.last_scanned {
                 Some(_) => {
                     format!("a record (opcode {opcode:#04x}) after this message does not parse")
                 }
@@ -235,7 +237,8 @@ impl SessionReader {
     ) -> Result<Step, SessionError> {
         let segment = self.next_segment()?;
         let (kept_messages, kept_backwards) = (self.messages.len(), self.backwards.len());
-        let kept_bytes = self.bytes_intact;
+        let (kept_bytes, kept_last, kept_scanned) =
+            (self.bytes_intact, self.last_scanned, st.scanned);
         let prefix = chunk_prefix(body.len());
         let mut reader = chunk_reader();
         let mut cursor = 0;
@@ -268,6 +271,8 @@ impl SessionReader {
                         self.messages.truncate(kept_messages);
                         self.backwards.truncate(kept_backwards);
                         self.bytes_intact = kept_bytes;
+                        self.last_scanned = kept_last;
+                        st.scanned = kept_scanned;
                     }
                     return self.failed(source, ran_out, st);
                 }
@@ -336,7 +341,7 @@ impl SessionReader {
                 // The warning names the file: commands print it beside other files' warnings.
                 self.warnings.push(format!(
                     "file is truncated: read {} messages from the first {} of {} bytes of {}; the rest is lost (last intact message: {})",
-                    self.messages.len(),
+                    st.scanned,
                     self.bytes_intact,
                     self.file_len,
                     self.path.display(),
@@ -386,6 +391,7 @@ impl SessionReader {
                 what: format!("message refers to unknown channel {}", header.channel_id),
             });
         }
+        self.last_scanned = Some((header.channel_id, header.log_time));
         if self.unindexed.contains(&header.channel_id) {
             return Ok(());
         }
@@ -433,8 +439,11 @@ impl SessionReader {
                             ),
                         })?
                 };
+                // Whether indexed follows the channel's latest declaration, as its topic does.
                 if self.scope == IndexScope::Roles && self.topics.role_of(&c.topic).is_none() {
                     self.unindexed.insert(c.id);
+                } else {
+                    self.unindexed.remove(&c.id);
                 }
                 self.channels.insert(
                     c.id,

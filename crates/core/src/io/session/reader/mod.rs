@@ -9,7 +9,8 @@
 //! that changes how fast, never what, a message reads; the order is that of a stable sort, so
 //! it is total and the same on every run. A reader opened for the roles
 //! ([`IndexScope::Roles`]) scans and checks every record alike but indexes only the messages
-//! of channels whose topic has a role: a robot's IMU, lidar and diagnostics cost nothing.
+//! of channels whose topic has a role: a robot's IMU, lidar and diagnostics add nothing to the
+//! index (they are still read and checked).
 //!
 //! Layout: [`index`] is the scan, [`source`] the file or memory it reads and the chunk cache,
 //! [`decode`] the CDR decoding by role, [`summary`] the summary-section reader of
@@ -144,6 +145,9 @@ pub struct SessionReader {
     scope: IndexScope,
     /// Channels whose messages are not indexed (no role, under [`IndexScope::Roles`]).
     unindexed: std::collections::BTreeSet<u16>,
+    /// (channel id, log time) of the last message scanned in file order, indexed or not:
+    /// what errors about the records after it name.
+    last_scanned: Option<(u16, u64)>,
     messages: Vec<MessageMeta>,
     segments: Vec<Segment>,
     chunk_count: usize,
@@ -260,6 +264,7 @@ impl SessionReader {
             channels: BTreeMap::new(),
             scope: IndexScope::All,
             unindexed: std::collections::BTreeSet::new(),
+            last_scanned: None,
             messages: Vec::new(),
             segments: Vec::new(),
             chunk_count: 0,
@@ -310,7 +315,8 @@ impl SessionReader {
         &self.channels
     }
 
-    /// All messages in (log_time, channel id, sequence) order, without their payloads.
+    /// The indexed messages (all, or those of the roles: [`IndexScope`]) in (log_time, channel
+    /// id, sequence) order, without their payloads.
     pub fn index(&self) -> &[MessageMeta] {
         &self.messages
     }

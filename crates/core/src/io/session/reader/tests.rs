@@ -594,7 +594,7 @@ fn a_chunk_left_with_the_writers_placeholder_length_is_a_truncation() {
 fn a_reader_for_the_roles_indexes_only_their_channels() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("roles.mcap");
-    let bytes = write(&path, small_chunks(), &increasing(600));
+    write(&path, small_chunks(), &increasing(600));
     let all = SessionReader::open(&path, Topics::default()).unwrap();
     let roles = SessionReader::open_scoped(&path, Topics::default(), IndexScope::Roles).unwrap();
     assert_eq!(roles.channels(), all.channels());
@@ -613,16 +613,67 @@ fn a_reader_for_the_roles_indexes_only_their_channels() {
     assert_eq!(roles.count("/cmd_vel"), 200);
     assert_eq!(roles.count("/a"), 0);
     assert_eq!(all.count("/a"), 200);
-    // The scan is the same: a byte flipped inside a chunk of /a and /b messages is an error
-    // for both readers.
-    let cut = chunk_indexes(&bytes)[1].clone();
+}
+
+/// The scan is the same for both scopes: a byte flipped inside a chunk that holds only /a
+/// and /b messages (neither indexed for the roles) is the same error, naming the same last
+/// message before it (the last scanned, not the last indexed); a chunk cut out is the same
+/// warning, with the messages scanned.
+#[test]
+fn a_reader_for_the_roles_checks_and_names_what_it_does_not_index() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("roles.mcap");
+    // 60 /cmd_vel messages, then 300 on /a and /b, then 60 more /cmd_vel.
+    let msgs: Written = (0..420u64)
+        .map(|k| {
+            let t = 1_000_000_000 + k * 1_000_000;
+            if (60..360).contains(&k) {
+                (t, (k % 2) as u16, k as u32, noise(k, 300))
+            } else {
+                (t, 2, k as u32, twist_cdr(t as i64, k as f64))
+            }
+        })
+        .collect();
+    let bytes = write(&path, small_chunks(), &msgs);
+    let chunks = chunk_indexes(&bytes);
+    let inner = chunks
+        .iter()
+        .find(|c| c.message_start_time > 1_100_000_000 && c.message_end_time < 1_300_000_000)
+        .expect("a chunk of /a and /b messages only")
+        .clone();
+    let open = |p: &Path, scope| SessionReader::open_scoped(p, Topics::default(), scope);
     let mut bad = bytes.clone();
-    let mid = usize::try_from(cut.chunk_start_offset + cut.chunk_length / 2).unwrap();
+    let mid = usize::try_from(inner.chunk_start_offset + inner.chunk_length / 2).unwrap();
     bad[mid] ^= 0x5a;
     let bad_path = dir.path().join("bad.mcap");
     std::fs::write(&bad_path, &bad).unwrap();
-    assert!(SessionReader::open(&bad_path, Topics::default()).is_err());
-    assert!(SessionReader::open_scoped(&bad_path, Topics::default(), IndexScope::Roles).is_err());
+    let all = open(&bad_path, IndexScope::All).unwrap_err().to_string();
+    let roles = open(&bad_path, IndexScope::Roles).unwrap_err().to_string();
+    assert_eq!(roles, all);
+    assert!(
+        all.contains("topic /a") || all.contains("topic /b"),
+        "{all}"
+    );
+    let start = usize::try_from(inner.chunk_start_offset).unwrap();
+    let end = start + usize::try_from(inner.chunk_length).unwrap();
+    let mut cut = bytes[..start].to_vec();
+    cut.extend_from_slice(&bytes[end..]);
+    let cut_path = dir.path().join("cut.mcap");
+    std::fs::write(&cut_path, &cut).unwrap();
+    let all = open(&cut_path, IndexScope::All).unwrap();
+    let roles = open(&cut_path, IndexScope::Roles).unwrap();
+    assert_eq!(roles.index().len(), 120);
+    assert!(all.index().len() < 420);
+    assert_eq!(roles.warnings, all.warnings);
+    assert_eq!(roles.warnings.len(), 1, "{:?}", roles.warnings);
+    assert!(
+        roles.warnings[0].contains(&format!(
+            "its summary counts 420 messages, the file holds {}",
+            all.index().len()
+        )),
+        "{:?}",
+        roles.warnings
+    );
 }
 
 /// A record that does not parse is a one-line error: the MCAP parser's innermost error,
