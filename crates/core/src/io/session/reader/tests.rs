@@ -654,12 +654,8 @@ fn a_reader_for_the_roles_checks_and_names_what_it_does_not_index() {
         all.contains("topic /a") || all.contains("topic /b"),
         "{all}"
     );
-    let start = usize::try_from(inner.chunk_start_offset).unwrap();
-    let end = start + usize::try_from(inner.chunk_length).unwrap();
-    let mut cut = bytes[..start].to_vec();
-    cut.extend_from_slice(&bytes[end..]);
     let cut_path = dir.path().join("cut.mcap");
-    std::fs::write(&cut_path, &cut).unwrap();
+    std::fs::write(&cut_path, without_chunk(&bytes, &inner)).unwrap();
     let all = open(&cut_path, IndexScope::All).unwrap();
     let roles = open(&cut_path, IndexScope::Roles).unwrap();
     assert_eq!(roles.index().len(), 120);
@@ -716,13 +712,8 @@ fn a_chunk_cut_out_is_told_by_the_summarys_count() {
             .warnings
             .is_empty()
     );
-    let chunk = chunk_indexes(&bytes)[2].clone();
-    let start = usize::try_from(chunk.chunk_start_offset).unwrap();
-    let end = start + usize::try_from(chunk.chunk_length).unwrap();
-    let mut cut = bytes[..start].to_vec();
-    cut.extend_from_slice(&bytes[end..]);
     let cut_path = dir.path().join("cut.mcap");
-    std::fs::write(&cut_path, &cut).unwrap();
+    std::fs::write(&cut_path, without_chunk(&bytes, &chunk_indexes(&bytes)[2])).unwrap();
     let reader = SessionReader::open(&cut_path, Topics::default()).unwrap();
     let held = reader.index().len();
     assert!(held < 600, "{held}");
@@ -733,4 +724,13 @@ fn a_chunk_cut_out_is_told_by_the_summarys_count() {
             cut_path.display()
         )]
     );
+}
+
+/// The file's bytes with `chunk`'s record cut out (the summary left as it was).
+fn without_chunk(bytes: &[u8], chunk: &mcap::records::ChunkIndex) -> Vec<u8> {
+    let start = usize::try_from(chunk.chunk_start_offset).unwrap();
+    let end = start + usize::try_from(chunk.chunk_length).unwrap();
+    let mut cut = bytes[..start].to_vec();
+    cut.extend_from_slice(&bytes[end..]);
+    cut
 }
