@@ -24,7 +24,7 @@ use objloc_core::io::session::{SessionReader, Topics, fmt_ns};
 use proptest::prelude::*;
 
 use crate::common::fixture::{
-    CAMERA_FRAME, HEIGHT_PX, MOUNT_TRANSLATION_M, T0_NS, WIDTH_PX, camera_info, cmd_vel,
+    CAMERA_FRAME, FX_PX, HEIGHT_PX, MOUNT_TRANSLATION_M, T0_NS, WIDTH_PX, camera_info, cmd_vel,
     fixture_png, frame_stamp_ns, label, mount, odom_pose,
 };
 use crate::common::{Run, objloc_bounded, repo_dir, train};
@@ -428,6 +428,67 @@ fn healthy_tour_fuses_trains_and_predicts() {
     assert_eq!(run.code, Some(0), "{}", run.stderr);
 }
 
+/// A report edited into one `fuse` could not have written is a one-line `eval` error naming
+/// the report and the numbers, not a silently wrong score; the report as written evaluates.
+#[test]
+fn eval_refuses_an_edited_report_naming_what_is_inconsistent() {
+    let dir = tempfile::tempdir().unwrap();
+    let session = write_tour(dir.path(), "ok.mcap", |_| {});
+    let run = fuse(dir.path(), &session, &[]);
+    assert_eq!(run.code, Some(0), "{}", run.stderr);
+    let written: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.path().join("r.json")).unwrap()).unwrap();
+    let eval = |report: &Path| {
+        objloc_bounded(&[
+            OsStr::new("eval"),
+            session.as_os_str(),
+            OsStr::new("--report"),
+            report.as_os_str(),
+            OsStr::new("-q"),
+        ])
+    };
+    let as_written = eval(&dir.path().join("r.json"));
+    assert_eq!(as_written.code, Some(0), "{}", as_written.stderr);
+
+    let dims: Vec<u64> = written["grid"]["dims"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|d| d.as_u64().unwrap())
+        .collect();
+    let cells: u64 = dims.iter().product();
+    let frames = written["per_frame"].as_array().unwrap().len();
+    assert_eq!(frames, FRAMES);
+    let edits: [(&str, fn(&mut serde_json::Value, u64), String); 3] = [
+        (
+            "cell.json",
+            |r, cells| r["object_cells"] = serde_json::json!([cells]),
+            format!("object_cells holds cell {cells}, outside the {cells} cells"),
+        ),
+        (
+            "order.json",
+            |r, _| {
+                let per_frame = r["per_frame"].as_array_mut().unwrap();
+                per_frame.swap(1, 2);
+            },
+            "per_frame index 1 after 2: frames out of order".to_owned(),
+        ),
+        (
+            "beyond.json",
+            |r, _| r["per_frame"][3]["index"] = serde_json::json!(7),
+            format!("per_frame index 7 is beyond the session's {FRAMES} frames"),
+        ),
+    ];
+    for (name, edit, why) in edits {
+        let mut report = written.clone();
+        edit(&mut report, cells);
+        let path = dir.path().join(name);
+        std::fs::write(&path, serde_json::to_vec(&report).unwrap()).unwrap();
+        let run = eval(&path);
+        assert_error(&run, &path, &["inconsistent report", &why]);
+    }
+}
+
 #[test]
 fn truncated_at_20_seeded_offsets() {
     let dir = tempfile::tempdir().unwrap();
@@ -765,6 +826,49 @@ fn non_finite_poses_intrinsics_and_twists() {
         &twist_inf,
         &["topic /cmd_vel", &at_frame(0), "twist is not finite"],
     );
+    assert!(run.stdout.contains("fused 4 of 4 frames"), "{}", run.stdout);
+}
+
+/// fuse takes one camera: a CameraInfo that changes mid-session is refused with one line
+/// naming the frame and exactly what changed (a distortion coefficient, a focal length
+/// beyond rounding), and nothing is written (`fuse` checks that); a change within the
+/// rounding tolerance fuses.
+#[test]
+fn a_camera_info_that_changes_is_refused_naming_the_change() {
+    let dir = tempfile::tempdir().unwrap();
+    let changed = write_tour(dir.path(), "changed.mcap", |m| {
+        let i = find(m, "/camera/camera_info", 2);
+        let mut ci = camera_info(2);
+        ci.k[0] += 2.5;
+        ci.distortion_model = "plumb_bob".into();
+        ci.d = vec![0.0, 0.0, 0.0, 0.0, 0.125];
+        m[i].payload = ci.to_cdr();
+    });
+    let run = fuse(dir.path(), &changed, &[]);
+    let line = assert_error(
+        &run,
+        &changed,
+        &[
+            "topic /camera/camera_info",
+            &at_frame(2),
+            "CameraInfo changes during the session",
+        ],
+    );
+    let fx = FX_PX;
+    assert!(
+        line.contains(&format!("fx {fx} -> {}", fx + 2.5)) && line.contains("k3 0 -> 0.125"),
+        "{line}"
+    );
+    assert!(!line.contains("fy ") && !line.contains("cx "), "{line}");
+
+    let rounded = write_tour(dir.path(), "rounded.mcap", |m| {
+        let i = find(m, "/camera/camera_info", 2);
+        let mut ci = camera_info(2);
+        ci.k[0] += 0.01;
+        m[i].payload = ci.to_cdr();
+    });
+    let run = fuse(dir.path(), &rounded, &[]);
+    assert_eq!(run.code, Some(0), "{}", run.stderr);
     assert!(run.stdout.contains("fused 4 of 4 frames"), "{}", run.stdout);
 }
 

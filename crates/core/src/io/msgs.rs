@@ -696,26 +696,47 @@ impl crate::types::geometry::Camera {
     }
 }
 
+/// Why a CameraInfo's distortion cannot be used.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum DistortionError {
+    /// A coefficient is NaN or infinite.
+    #[error("CameraInfo d {d:?} is not finite")]
+    NotFinite {
+        /// The coefficients as given.
+        d: Vec<f64>,
+    },
+    /// A model objloc does not represent.
+    #[error(
+        "CameraInfo distortion model {model:?} with d {d:?} cannot be represented (objloc \
+         handles plumb_bob, the OpenCV radial-tangential model)"
+    )]
+    Unsupported {
+        /// `distortion_model` as given.
+        model: String,
+        /// The coefficients as given.
+        d: Vec<f64>,
+    },
+}
+
 impl crate::types::lens::Distortion {
     /// The distortion a CameraInfo declares, or why objloc cannot represent it: `plumb_bob`
     /// and `rational_polynomial` (with its k4..k6 zero) are radial-tangential; any model with
     /// all coefficients zero is none.
-    pub fn from_info(ci: &CameraInfo) -> Result<Self, String> {
+    pub fn from_info(ci: &CameraInfo) -> Result<Self, DistortionError> {
         if ci.d.iter().all(|v| *v == 0.0) {
             return Ok(Self::default());
         }
         if !ci.d.iter().all(|v| v.is_finite()) {
-            return Err(format!("CameraInfo d {:?} is not finite", ci.d));
+            return Err(DistortionError::NotFinite { d: ci.d.clone() });
         }
         let model = ci.distortion_model.as_str();
         let radial_tangential = model == "plumb_bob"
             || (model == "rational_polynomial" && ci.d.iter().skip(5).all(|v| *v == 0.0));
         if !radial_tangential || ci.d.len() > 8 {
-            return Err(format!(
-                "CameraInfo distortion model {model:?} with d {:?} cannot be represented (objloc \
-                 handles plumb_bob, the OpenCV radial-tangential model)",
-                ci.d
-            ));
+            return Err(DistortionError::Unsupported {
+                model: model.to_owned(),
+                d: ci.d.clone(),
+            });
         }
         Ok(Self::from_plumb_bob(&ci.d))
     }

@@ -216,7 +216,7 @@ impl Collected {
                 ci.width, ci.height, ci.k
             ))
         })?;
-        let d = Distortion::from_info(ci).map_err(invalid)?;
+        let d = Distortion::from_info(ci).map_err(|e| invalid(e.to_string()))?;
         match &self.camera {
             None => self.camera = Some((cam, d, ci.header.frame_id.clone())),
             Some((c, d0, _)) => {
