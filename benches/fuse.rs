@@ -1,7 +1,7 @@
 //! Fuser benchmarks (`cargo bench --bench fuse`): one frame's update of a 100^3 grid (camera
-//! outside looking in, the peer's case, and camera inside as on a tour), one
-//! motion blur of each kind, and how both scale with the grid; each as the median of repeated
-//! runs, with the same operations timed in NumPy (scripts/numpy_peer.py, when the venv at
+//! outside looking in, the peer's case, and camera inside as on a tour), one motion blur of
+//! each kind, a Rerun snapshot's grid summary, and how they scale with the grid; each as the
+//! median of repeated runs, with the same operations timed in NumPy (scripts/numpy_peer.py, when the venv at
 //! target/pyenv exists) as the peer for a ratio. `OBJLOC_BENCH_SCALING=1` adds grids up to
 //! 400^3; `OBJLOC_BENCH_GRID_ONLY=1` leaves out the tours.
 
@@ -231,8 +231,15 @@ fn main() {
         sizes.push(400);
     }
     println!(
-        "{:>6} {:>12} {:>14} {:>16} {:>14} {:>14} {:>14}",
-        "grid", "cells", "update ms", "update in ms", "translate ms", "rotate ms", "prob-blur ms"
+        "{:>6} {:>12} {:>14} {:>16} {:>14} {:>14} {:>14} {:>14}",
+        "grid",
+        "cells",
+        "update ms",
+        "update in ms",
+        "translate ms",
+        "rotate ms",
+        "prob-blur ms",
+        "summary ms"
     );
     let mut at100 = (0.0, 0.0);
     for &n in &sizes {
@@ -265,18 +272,24 @@ fn main() {
             b.translate(&mut g, [0.8, 0.6], 0.017, BlurMode::Probability)
                 .unwrap()
         });
+        // What a Rerun snapshot costs the replay's thread: the whole grid summarised (its
+        // peer is the frame's update above: a snapshot should cost less than a frame).
+        let summary = median_ms(reps.min(9), || {
+            black_box(objloc_core::out::view::summarize_grid(&g, 0.5, 2, 100_000));
+        });
         if n == 100 {
             at100 = (update, translate.max(rotate));
         }
         println!(
-            "{:>5}^3 {:>12} {:>14.2} {:>16.2} {:>14.2} {:>14.2} {:>14.2}",
+            "{:>5}^3 {:>12} {:>14.2} {:>16.2} {:>14.2} {:>14.2} {:>14.2} {:>14.2}",
             n,
             n * n * n,
             update,
             update_inside,
             translate,
             rotate,
-            prob
+            prob,
+            summary
         );
     }
     let py = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("target/pyenv/bin/python");

@@ -81,11 +81,12 @@ const WORLD_FRAME: &str = "tf#/world";
 /// camera frame, the pyramids, the objects and the plots stay per frame.
 const SNAPSHOTS: usize = 50;
 /// ...and fewer for a big grid: the snapshots together summarise about this many stored
-/// cells. The simulated and foreign rooms (at most 2.0 M stored cells, the held-out tiled
-/// floor's) keep all 50; a real capture's fitted grid (6-7 M cells, 40-50 frames) gets 14-16
-/// instead of one a frame, which (43 on the milk carton) took two thirds of the time the
-/// stream added to its replay.
-const SNAPSHOT_CELLS: usize = 100_000_000;
+/// cells. Grids of up to 1 M stored cells (the 200-stop tour's, the foreign rooms') keep all
+/// 50, the held-out tiled floor (2.0 M) 25; a real capture's fitted grid (6-8 M cells,
+/// 40-80 frames) gets 6-8. A snapshot there costs the replay's thread 20-35 ms (summarising
+/// every cell), more than a frame's fusion: at 100 M cells (12-16 snapshots) the milk
+/// carton's stream took 1.6x its replay, at 50 M 1.35x (docs/scale.md).
+const SNAPSHOT_CELLS: usize = 50_000_000;
 /// One line per refined frame: the verdict and its numbers; the rollback, when it happens.
 const VERDICT_LOG: &str = "refinement";
 /// Frames the replay may run ahead of the logging thread: enough to smooth out a snapshot

@@ -459,7 +459,9 @@ fn eval_refuses_an_edited_report_naming_what_is_inconsistent() {
     let cells: u64 = dims.iter().product();
     let frames = written["per_frame"].as_array().unwrap().len();
     assert_eq!(frames, FRAMES);
-    let edits: [(&str, fn(&mut serde_json::Value, u64), String); 3] = [
+    // (file, the edit given the grid's cell count, what the error says)
+    type Edit = fn(&mut serde_json::Value, u64);
+    let edits: [(&str, Edit, String); 3] = [
         (
             "cell.json",
             |r, cells| r["object_cells"] = serde_json::json!([cells]),

@@ -10,7 +10,7 @@ use nalgebra::Point3;
 use rayon::prelude::*;
 use sha2::{Digest, Sha256};
 
-use crate::fuse::grid::{BlockCells, Grid, Region, for_each_cell, sigmoid};
+use crate::fuse::grid::{BLOCK, BlockCells, Grid, Region, sigmoid};
 use crate::fuse::objects::Object;
 use crate::fuse::refine::Verdict;
 use crate::fuse::replay::SessionData;
@@ -54,17 +54,18 @@ pub struct GridSummary {
     pub along_z: Vec<f32>,
 }
 
-/// Sorts `cells` into index order keeping at most `max_cells` of them: the most probable,
-/// ties to the lower index (a total order, so the cut does not depend on how the cells
-/// came). The cut comes before the sort: a real capture's fitted grid (200 cells a side)
-/// had 540 000 cells above 0.5, most of them the cones behind the object.
+/// Sorts `cells` (index, log-odds or posterior) into index order keeping at most `max_cells`
+/// of them: the most probable, ties to the lower index (a total order, so the cut does not
+/// depend on how the cells came). The cut comes before the sort: a real capture's fitted
+/// grid (200 cells a side) had 540 000 cells above 0.5, most of them the cones behind the
+/// object.
 fn most_probable_in_index_order(cells: &mut Vec<([i32; 3], f32)>, max_cells: usize) {
     if cells.len() > max_cells {
         if max_cells == 0 {
             cells.clear();
             return;
         }
-        // Descending posterior (never NaN), then ascending index.
+        // Descending value (never NaN), then ascending index.
         cells.select_nth_unstable_by(max_cells - 1, |a, b| {
             b.1.total_cmp(&a.1).then(a.0.cmp(&b.0))
         });
@@ -78,11 +79,12 @@ fn binary_entropy_bits(p: f64) -> f64 {
     h(p) + h(1.0 - p)
 }
 
-/// Log-odds beyond which [`PosteriorTable`] holds a cell at 0 or 1 (sigmoid(-40) = 4e-18).
-const TABLE_LOG_ODDS_MAX: f64 = 40.0;
-/// Table entries per unit of log-odds: linear interpolation between them is within 2e-7 of
-/// the posterior and 3e-6 bits of the entropy, far below what a plot shows.
-const TABLE_STEPS_PER_UNIT: f64 = 256.0;
+/// Log-odds beyond which [`PosteriorTable`] holds a cell at its ends (sigmoid(-20) = 2e-9).
+const TABLE_LOG_ODDS_MAX: f64 = 20.0;
+/// Table entries per unit of log-odds: linear interpolation between them (and the f32
+/// entries) is within 1e-6 of the posterior and 1e-5 bits of the entropy, far below what a
+/// plot shows.
+const TABLE_STEPS_PER_UNIT: f64 = 128.0;
 
 /// Whether frame `index` of a pass of `frames` frames gets a snapshot of what grows with the
 /// replay, when at most about `max_snapshots` are wanted: every frame up to that many
@@ -109,44 +111,48 @@ static POSTERIOR_TABLE: std::sync::OnceLock<PosteriorTable> = std::sync::OnceLoc
 /// projections and the mean entropy of a snapshot need both for every cell (a million
 /// cells, three transcendental calls each, cost more than the replay's frame), and a plot
 /// needs neither to the last bit. The shown cells and the maximum use the exact sigmoid.
+/// f32 pairs, so that the table (41 kB) stays near the first-level cache: a snapshot of a
+/// real capture's grid looks it up millions of times at scattered log-odds.
 struct PosteriorTable {
-    /// (posterior, entropy bits) at log-odds `-MAX + i / STEPS`.
-    at: Vec<(f64, f64)>,
+    /// (posterior, entropy bits) at log-odds `-MAX + i / STEPS`, the last entry twice (so
+    /// that the entry after any index in range exists).
+    at: Vec<(f32, f32)>,
 }
 
 impl PosteriorTable {
     fn new() -> Self {
         let n = (2.0 * TABLE_LOG_ODDS_MAX * TABLE_STEPS_PER_UNIT) as usize + 1;
-        let at = (0..n)
+        let mut at: Vec<(f32, f32)> = (0..n)
             .map(|i| {
                 let l = i as f64 / TABLE_STEPS_PER_UNIT - TABLE_LOG_ODDS_MAX;
                 let p = sigmoid(l);
-                (p, binary_entropy_bits(p))
+                (p as f32, binary_entropy_bits(p) as f32)
             })
             .collect();
+        at.push(at[n - 1]);
         Self { at }
     }
 
-    /// (posterior, entropy bits) of log-odds `l`, interpolated; NaN counts as the bottom end.
+    /// (posterior, entropy bits) of log-odds `l`, interpolated; NaN counts as the bottom end,
+    /// log-odds beyond the table as its ends.
     #[inline]
     fn get(&self, l: f32) -> (f64, f64) {
-        let x = (f64::from(l) + TABLE_LOG_ODDS_MAX) * TABLE_STEPS_PER_UNIT;
-        if x.is_nan() || x <= 0.0 {
-            return self.at[0];
-        }
-        let last = self.at.len() - 1;
-        if x >= last as f64 {
-            return self.at[last];
-        }
+        let last = (self.at.len() - 2) as f64;
+        // `max` maps NaN to 0.
+        let x = ((f64::from(l) + TABLE_LOG_ODDS_MAX) * TABLE_STEPS_PER_UNIT)
+            .max(0.0)
+            .min(last);
         let i = x as usize;
         let f = x - i as f64;
         let (a, b) = (self.at[i], self.at[i + 1]);
-        (a.0 + f * (b.0 - a.0), a.1 + f * (b.1 - a.1))
+        let lerp = |u: f32, v: f32| f64::from(u) + f * (f64::from(v) - f64::from(u));
+        (lerp(a.0, b.0), lerp(a.1, b.1))
     }
 }
 
 /// The [`GridSummary`] of `grid`; the cells shown have a posterior above `min_posterior` and were
-/// seen by at least `min_views` frames, at most `max_cells` of them (the most probable).
+/// seen by at least `min_views` frames, at most `max_cells` of them (the most probable by
+/// log-odds: the f32 posterior is 1 for every cell above log-odds 17).
 /// Cells outside the stored blocks are at the prior and count as such.
 pub fn summarize_grid(
     grid: &Grid,
@@ -165,36 +171,59 @@ pub fn summarize_grid(
     let slabs: Vec<&[BlockCells<'_>]> = blocks
         .chunk_by(|a, b| a.first_cell[0] == b.first_cell[0])
         .collect();
-    let mut along_x = vec![0f64; h * d];
+    // along_x is summed transposed (z fastest, as the cells are stored) and turned into
+    // its image layout once at the end.
+    let mut along_x_t = vec![0f64; h * d];
     let mut along_y = vec![0f64; w * d];
     let mut along_z = vec![0f64; w * h];
-    let mut cells = Vec::new();
+    let mut hist = vec![0u64; SHOWN_BINS];
     let mut max_e = f32::NEG_INFINITY;
     let mut entropy = 0.0;
+    // The slabs' sums are reused from batch to batch: a fresh h x d buffer per slab (a
+    // quarter of a MB on a real capture's grid) was mapped, zeroed and unmapped each time.
+    let mut pool: Vec<SlabSummary> = Vec::new();
     for batch in slabs.chunks(SUMMARY_SLABS) {
-        let parts: Vec<SlabSummary> = batch
-            .par_iter()
-            .map(|slab| summarize_slab(grid, slab, &region, at_prior, min_posterior, min_views))
-            .collect();
-        for part in parts {
+        pool.resize_with(batch.len().max(pool.len()), SlabSummary::default);
+        pool.par_iter_mut()
+            .zip(batch.par_iter())
+            .for_each(|(part, slab)| {
+                summarize_slab(
+                    part,
+                    grid,
+                    slab,
+                    &region,
+                    at_prior,
+                    min_posterior,
+                    min_views,
+                );
+            });
+        for part in pool.iter_mut().take(batch.len()) {
             max_e = max_e.max(part.max_e);
             entropy += part.entropy;
-            for (a, v) in along_x.iter_mut().zip(&part.along_x) {
+            for (a, v) in along_x_t.iter_mut().zip(&part.along_x_t) {
                 *a += v;
             }
-            let (x0, pw) = (part.first_x - region.first_cell[0], part.width);
-            for row in 0..d {
-                along_y[row * w + x0..row * w + x0 + pw]
-                    .copy_from_slice(&part.along_y[row * pw..(row + 1) * pw]);
+            let x0 = part.first_x - region.first_cell[0];
+            for col in 0..part.width {
+                for rz in 0..d {
+                    along_y[rz * w + x0 + col] = part.along_y_t[col * d + rz];
+                }
+                for ry in 0..h {
+                    along_z[ry * w + x0 + col] = part.along_z_t[col * h + ry];
+                }
             }
-            for row in 0..h {
-                along_z[row * w + x0..row * w + x0 + pw]
-                    .copy_from_slice(&part.along_z[row * pw..(row + 1) * pw]);
+            for (a, v) in hist.iter_mut().zip(&part.hist) {
+                *a += u64::from(*v);
             }
-            cells.extend(part.cells);
         }
     }
-    most_probable_in_index_order(&mut cells, max_cells);
+    let mut along_x = vec![0f64; h * d];
+    for jy in 0..h {
+        for rz in 0..d {
+            along_x[rz * h + jy] = along_x_t[jy * d + rz];
+        }
+    }
+    let cells = shown_cells(grid, &slabs, &hist, min_posterior, min_views, max_cells);
     if !grid.is_fully_stored() {
         max_e = max_e.max(0.0);
     }
@@ -220,73 +249,171 @@ pub fn summarize_grid(
 /// Slabs of x blocks per parallel batch of [`summarize_grid`].
 const SUMMARY_SLABS: usize = 8;
 
-/// A [`GridSummary`]'s sums over one slab of x blocks (`width` columns from `first_x`):
-/// `along_y` and `along_z` only for those columns, `along_x` over them; each the cells'
-/// difference from the prior's value.
+/// A [`GridSummary`]'s sums over one slab of x blocks (`width` columns from `first_x`),
+/// each the cells' difference from the prior's value, laid out with the cells' fastest axis
+/// fastest (so that a column of cells adds to consecutive entries): `along_x_t[jy * d + rz]`,
+/// `along_y_t[col * d + rz]`, `along_z_t[col * h + ry]`.
+#[derive(Default)]
 struct SlabSummary {
     first_x: usize,
     width: usize,
     max_e: f32,
     entropy: f64,
-    along_x: Vec<f64>,
-    along_y: Vec<f64>,
-    along_z: Vec<f64>,
-    cells: Vec<([i32; 3], f32)>,
+    along_x_t: Vec<f64>,
+    along_y_t: Vec<f64>,
+    along_z_t: Vec<f64>,
+    /// The cells that may be shown, counted by their log-odds ([`shown_bin`]).
+    hist: Vec<u32>,
 }
 
+/// Fills `s` with the sums of `slab` (whatever `s` held before).
 fn summarize_slab(
+    s: &mut SlabSummary,
     grid: &Grid,
     slab: &[BlockCells<'_>],
     region: &Region,
     at_prior: (f64, f64),
     min_posterior: f32,
     min_views: u16,
-) -> SlabSummary {
+) {
     let [_, h, d] = region.dims;
     let first_x = slab.first().map_or(0, |b| b.first_cell[0]);
     let width = slab.first().map_or(0, |b| b.extent[0]);
     let table = POSTERIOR_TABLE.get_or_init(PosteriorTable::new);
     let prior = grid.prior_log_odds();
-    // A cell can be shown only if its log-odds come near the threshold's: the exact sigmoid
-    // decides for those few (the margin covers the rounding of logit and of the f32 cast).
-    let near_threshold = (crate::fuse::grid::logit(f64::from(min_posterior)) - 1e-3) as f32;
-    let mut s = SlabSummary {
-        first_x,
-        width,
-        max_e: f32::NEG_INFINITY,
-        entropy: 0.0,
-        along_x: vec![0.0; h * d],
-        along_y: vec![0.0; width * d],
-        along_z: vec![0.0; width * h],
-        cells: Vec::new(),
+    let near_threshold = near_threshold(min_posterior);
+    let zeroed = |v: &mut Vec<f64>, len: usize| {
+        v.clear();
+        v.resize(len, 0.0);
     };
+    s.first_x = first_x;
+    s.width = width;
+    s.max_e = f32::NEG_INFINITY;
+    s.entropy = 0.0;
+    zeroed(&mut s.along_x_t, h * d);
+    zeroed(&mut s.along_y_t, width * d);
+    zeroed(&mut s.along_z_t, width * h);
+    s.hist.clear();
+    s.hist.resize(SHOWN_BINS, 0);
     let [_, j0, k0] = region.first_cell;
     for b in slab {
-        for_each_cell(b, |o, [a, c, e]| {
-            let (i, j, k) = (
-                b.first_cell[0] + a,
-                b.first_cell[1] + c,
-                b.first_cell[2] + e,
-            );
-            let ev = b.evidence[o];
-            let l = prior + ev;
-            s.max_e = s.max_e.max(ev);
-            let (p, hb) = table.get(l);
-            let p = p - at_prior.0;
-            s.entropy += hb - at_prior.1;
-            let (rz, ry) = (d - 1 - (k - k0), h - 1 - (j - j0));
-            s.along_x[rz * h + j - j0] += p;
-            s.along_y[rz * width + i - first_x] += p;
-            s.along_z[ry * width + i - first_x] += p;
-            if l > near_threshold && b.views[o] >= min_views {
-                let p = sigmoid(f64::from(l)) as f32;
-                if p > min_posterior {
-                    s.cells.push(([i as i32, j as i32, k as i32], p));
+        let [bi, bj, bk] = b.first_cell;
+        // rz = d - 1 - (k - k0) runs down as k runs up the column: reversed below.
+        let top = d - (bk - k0);
+        for a in 0..b.extent[0] {
+            let col = bi + a - first_x;
+            for c in 0..b.extent[1] {
+                let jy = bj + c - j0;
+                let base = (a * BLOCK + c) * BLOCK;
+                let evidence = &b.evidence[base..base + b.extent[2]];
+                let ys = &mut s.along_y_t[col * d + top - evidence.len()..col * d + top];
+                let xs = &mut s.along_x_t[jy * d + top - evidence.len()..jy * d + top];
+                let (mut sum_p, mut sum_h) = (0.0, 0.0);
+                for ((&ev, y), x) in evidence
+                    .iter()
+                    .zip(ys.iter_mut().rev())
+                    .zip(xs.iter_mut().rev())
+                {
+                    s.max_e = s.max_e.max(ev);
+                    let (p, hb) = table.get(prior + ev);
+                    let p = p - at_prior.0;
+                    sum_p += p;
+                    sum_h += hb - at_prior.1;
+                    *y += p;
+                    *x += p;
+                }
+                s.along_z_t[col * h + h - 1 - jy] += sum_p;
+                s.entropy += sum_h;
+                for (e, &ev) in evidence.iter().enumerate() {
+                    let l = prior + ev;
+                    if l > near_threshold && b.views[base + e] >= min_views {
+                        s.hist[shown_bin(l, near_threshold)] += 1;
+                    }
                 }
             }
-        });
+        }
     }
-    s
+}
+
+/// Bins of [`shown_bin`]: a snapshot counts the cells it may show by log-odds first, then
+/// collects only those of the bins that hold the most probable `max_cells`. A real capture's
+/// grid has 1.5-2.2 M cells above 0.5, and pushing, sorting and cutting all of them was half
+/// of a snapshot's time on the replay's thread.
+const SHOWN_BINS: usize = 4096;
+/// Bins per unit of log-odds above the threshold (the last bin takes everything beyond).
+const SHOWN_BINS_PER_UNIT: f32 = 64.0;
+
+/// The bin of log-odds `l` above `near_threshold`: non-decreasing in `l`.
+#[inline]
+fn shown_bin(l: f32, near_threshold: f32) -> usize {
+    (((l - near_threshold) * SHOWN_BINS_PER_UNIT) as usize).min(SHOWN_BINS - 1)
+}
+
+/// The cells to show, in index order: of the cells above `min_posterior` seen by at least
+/// `min_views` frames (counted by log-odds in `hist`), the `max_cells` of the highest
+/// log-odds, ties to the lower index, with their posteriors. Exactly those
+/// [`most_probable_in_index_order`] picks from all of them: only cells of a lower bin than
+/// at least `max_cells` others, so of lower log-odds, are left out.
+fn shown_cells(
+    grid: &Grid,
+    slabs: &[&[BlockCells<'_>]],
+    hist: &[u64],
+    min_posterior: f32,
+    min_views: u16,
+    max_cells: usize,
+) -> Vec<([i32; 3], f32)> {
+    let prior = grid.prior_log_odds();
+    let near_threshold = near_threshold(min_posterior);
+    // The lowest bin whose cells and those above reach max_cells (0: every candidate).
+    let mut above = 0u64;
+    let mut first_bin = 0;
+    for (bin, &n) in hist.iter().enumerate().rev() {
+        above += n;
+        if above >= max_cells as u64 {
+            first_bin = bin;
+            break;
+        }
+    }
+    let parts: Vec<Vec<([i32; 3], f32)>> = slabs
+        .par_iter()
+        .map(|slab| {
+            let mut out = Vec::new();
+            for b in slab.iter() {
+                for (o, &ev) in b.evidence.iter().enumerate() {
+                    let l = prior + ev;
+                    if l.is_nan() || l <= near_threshold || b.views[o] < min_views {
+                        continue;
+                    }
+                    let bin = shown_bin(l, near_threshold);
+                    let [a, c, e] = [o / (BLOCK * BLOCK), o / BLOCK % BLOCK, o % BLOCK];
+                    let inside = a < b.extent[0] && c < b.extent[1] && e < b.extent[2];
+                    // Above the first bin the margin is passed (see `near_threshold`).
+                    let shown = bin > 0 || sigmoid(f64::from(l)) as f32 > min_posterior;
+                    if inside && bin >= first_bin && shown {
+                        let [i, j, k] = b.first_cell;
+                        out.push(([(i + a) as i32, (j + c) as i32, (k + e) as i32], l));
+                    }
+                }
+            }
+            out
+        })
+        .collect();
+    let mut cells = Vec::with_capacity(parts.iter().map(Vec::len).sum());
+    for part in parts {
+        cells.extend(part);
+    }
+    most_probable_in_index_order(&mut cells, max_cells);
+    for c in &mut cells {
+        c.1 = sigmoid(f64::from(c.1)) as f32;
+    }
+    cells
+}
+
+/// Log-odds below which no cell's posterior exceeds `min_posterior`: its logit less a
+/// margin for the rounding of the logit and of the f32 casts. A cell of log-odds at least
+/// one [`shown_bin`] above it is certainly above `min_posterior` (1/64 > the margin).
+fn near_threshold(min_posterior: f32) -> f32 {
+    (crate::fuse::grid::logit(f64::from(min_posterior)) - 1e-3) as f32
 }
 
 /// Tile probabilities as one f32 per image pixel (0 outside whole tiles: "no value").
@@ -518,6 +645,58 @@ mod tests {
         assert_eq!(moved[2].0[1], [4.0, 3.0, 3.0]);
     }
 
+    /// The shown cells, counted by log-odds and collected from the bins that hold the most
+    /// probable, are exactly those a sort of every candidate by log-odds picks: with more
+    /// candidates than the cut, ties at the cut (equal log-odds; posteriors that round to 1
+    /// in f32, ranked by their log-odds), cells seen too few times, a grid whose sides are not
+    /// whole blocks, and a cut that keeps everything.
+    #[test]
+    fn shown_cells_are_the_most_probable_of_every_candidate() {
+        let spec = GridSpec {
+            origin_m: [0.0; 3],
+            voxel_size_m: 1.0,
+            dims: [19, 13, 22],
+        };
+        let mut grid = Grid::new(spec, 0.02).unwrap();
+        let prior = grid.prior_log_odds();
+        let mut candidates = Vec::new();
+        let mut state = 12345u64;
+        for i in 0..19 {
+            for j in 0..13 {
+                for k in 0..22 {
+                    state = state
+                        .wrapping_mul(6364136223846793005)
+                        .wrapping_add(1442695040888963407);
+                    let r = (state >> 33) as u32;
+                    // Log-odds -6..40: many saturated (p = 1 in f32), many equal.
+                    let l = match r % 4 {
+                        0 => 25.0 + (r % 3) as f32,
+                        1 => (r % 460) as f32 / 10.0 - 6.0,
+                        2 => 1.5,
+                        _ => -2.0,
+                    };
+                    let views = (r >> 8) as u16 % 4;
+                    grid.set_cell(spec.index(i, j, k), l - prior, views)
+                        .unwrap();
+                    let l = prior + (l - prior);
+                    if views >= 2 && sigmoid(f64::from(l)) as f32 > 0.5 {
+                        candidates.push(([i as i32, j as i32, k as i32], l));
+                    }
+                }
+            }
+        }
+        assert!(candidates.len() > 1500, "{}", candidates.len());
+        for max_cells in [0, 1, 7, 300, 1000, candidates.len(), 100_000] {
+            let mut want = candidates.clone();
+            most_probable_in_index_order(&mut want, max_cells);
+            for c in &mut want {
+                c.1 = sigmoid(f64::from(c.1)) as f32;
+            }
+            let got = summarize_grid(&grid, 0.5, 2, max_cells).cells;
+            assert_eq!(got, want, "max_cells {max_cells}");
+        }
+    }
+
     #[test]
     fn grid_summary_projections_entropy_and_shown_cells() {
         let spec = GridSpec {
@@ -656,10 +835,13 @@ mod tests {
             assert!((tp - p).abs() < 1e-6, "p at {l}: {tp} vs {p}");
             assert!((th - binary_entropy_bits(p)).abs() < 1e-5, "h at {l}");
         }
-        assert_eq!(t.get(f32::NAN), t.at[0]);
-        assert!(t.at[0].0 < 1e-17 && t.at[0].1 < 1e-15);
-        assert_eq!(t.get(-100.0).0, t.at[0].0);
-        assert!((t.get(100.0).0 - 1.0).abs() < 1e-15);
+        let ends = |e: (f32, f32)| (f64::from(e.0), f64::from(e.1));
+        assert_eq!(t.get(f32::NAN), ends(t.at[0]));
+        assert_eq!(t.get(f32::NEG_INFINITY), ends(t.at[0]));
+        assert!(t.at[0].0 < 3e-9 && t.at[0].1 < 1e-7);
+        assert_eq!(t.get(-100.0).0, f64::from(t.at[0].0));
+        assert_eq!(t.get(100.0), (1.0, f64::from(t.at[t.at.len() - 1].1)));
+        assert_eq!(t.get(f32::INFINITY).0, 1.0);
     }
 
     #[test]

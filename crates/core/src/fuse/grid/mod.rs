@@ -28,7 +28,8 @@ use thiserror::Error;
 
 use crate::types::geometry::{Camera, Iso3};
 pub use access::for_each_cell;
-use blocks::{BLOCK, BLOCK_CELLS, Layout, block_dims, cell_offset};
+pub use blocks::BLOCK;
+use blocks::{BLOCK_CELLS, Layout, block_dims, cell_offset};
 use project::Projector;
 
 /// Largest grid objloc allocates, all buffers counted: 4 GiB keeps a 24 GiB machine safe with
