@@ -19,5 +19,19 @@ fn main() -> std::process::ExitCode {
     unsafe {
         libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }
+    use_main_thread_in_rayon_pool();
     cmd::main(cmd::Cli::parse())
+}
+
+/// Makes this thread one of the global pool's workers (as many in all as `RAYON_NUM_THREADS`
+/// or the cores): a replay calls the pool tens of times a frame, and from a thread outside
+/// it each call is injected into the pool and waited for asleep, while this thread works
+/// alongside the others from inside it. Which thread computes what never changes a result
+/// (every parallel sum is grouped independently of the threads).
+fn use_main_thread_in_rayon_pool() {
+    // Fails only if a pool was built before, which nothing here does; the default pool
+    // then works as before.
+    let _ = rayon::ThreadPoolBuilder::new()
+        .use_current_thread()
+        .build_global();
 }
