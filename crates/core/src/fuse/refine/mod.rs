@@ -54,9 +54,9 @@ pub use landmarks::{
 pub use search::{MIN_PROMINENCE, MIN_SEPARATION, SCORED_IN_FULL_NATS};
 
 use landmarks::{associate, image_covariance, project};
-use search::search;
 #[cfg(test)]
 use search::separated_margin;
+use search::{Found, search};
 
 use nalgebra::{Matrix2, Matrix3, Translation3, UnitQuaternion, Vector2, Vector3};
 
@@ -413,15 +413,10 @@ pub fn refine(q: &Localisation<'_>) -> Correction {
     // Each pair's information matrix in pixels, at the predicted pose (the window is small
     // against the range, so it holds over the search).
     let camera_from_predicted = (predicted * base_from_camera).inverse();
-    let infos: Vec<Matrix2<f64>> =
-        pairs
-            .iter()
-            .map(|&(i, _)| {
-                image_covariance(&landmarks[i], camera, &camera_from_predicted).unwrap_or(
-                    Matrix2::new(SIGMA_U_PX.powi(-2), 0.0, 0.0, SIGMA_V_PX.powi(-2)),
-                )
-            })
-            .collect();
+    let infos: Vec<Matrix2<f64>> = pairs
+        .iter()
+        .map(|&(i, _)| pair_information(&landmarks[i], camera, &camera_from_predicted))
+        .collect();
     // z: whitened coordinates; the correction is L z and its log prior -|z|^2 / 2. Every
     // term is at most zero, so the floor's share of `at_least` bounds when its sum may stop
     // (search: exact at or above `at_least`).
@@ -470,15 +465,7 @@ pub fn refine(q: &Localisation<'_>) -> Correction {
     let d = l * found.best_z;
     let candidate = candidate_of(&found.best_z);
     let total_chi2 = gate.map_or(0.0, |g| g.chi2(&candidate));
-    let outcome = if found.gain < MIN_GAIN {
-        Verdict::Insignificant
-    } else if found.runner_up_margin < AMBIGUITY_MARGIN {
-        Verdict::Ambiguous
-    } else if total_chi2 > GATE_CHI2 * GATE_SIGMA_SCALE * GATE_SIGMA_SCALE {
-        Verdict::Gated
-    } else {
-        Verdict::Accepted
-    };
+    let outcome = verdict(&found, total_chi2);
     let applied = outcome == Verdict::Accepted;
     let at = if applied { &candidate } else { predicted };
     let used = floor.filter(|_| floor_used);
@@ -495,6 +482,32 @@ pub fn refine(q: &Localisation<'_>) -> Correction {
         runner_up_margin: found.runner_up_margin,
         runner_up_sigmas: found.runner_up_distance,
         floor_fit,
+    }
+}
+
+/// A landmark pair's information matrix in pixels at the camera pose `camera_from_odom`, or
+/// the detection noise's alone where the landmark's spread does not project.
+fn pair_information(landmark: &Landmark, camera: &Camera, camera_from_odom: &Iso3) -> Matrix2<f64> {
+    image_covariance(landmark, camera, camera_from_odom).unwrap_or(Matrix2::new(
+        SIGMA_U_PX.powi(-2),
+        0.0,
+        0.0,
+        SIGMA_V_PX.powi(-2),
+    ))
+}
+
+/// What the search found decides the frame: too small a gain leaves it where it was
+/// predicted, a separated candidate close behind makes it ambiguous, a pose beyond the total
+/// gate is refused; otherwise the correction is accepted.
+fn verdict(found: &Found, total_chi2: f64) -> Verdict {
+    if found.gain < MIN_GAIN {
+        Verdict::Insignificant
+    } else if found.runner_up_margin < AMBIGUITY_MARGIN {
+        Verdict::Ambiguous
+    } else if total_chi2 > GATE_CHI2 * GATE_SIGMA_SCALE * GATE_SIGMA_SCALE {
+        Verdict::Gated
+    } else {
+        Verdict::Accepted
     }
 }
 
