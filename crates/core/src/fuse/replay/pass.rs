@@ -179,27 +179,24 @@ fn step(
             &(odom_from_base * p.mount),
         ));
     }
-    if let Some(map) = tracker.floor_map.as_mut().filter(|_| !floor_unfit) {
-        map.add(&floor, &odom_from_base);
-    }
-    if let Some(check) = pass.floor_check.as_mut() {
-        check.fused.add(&floor, &odom_from_base);
-        check.odometry.add(&floor, &p.odometry);
-    }
-    drop(floor);
     // A frame whose pose was measured (corrected, or found where it was predicted) is not
     // blurred: the measurement replaces the motion model's spread.
     let localised = options.refine_poses && correction.is_some_and(|c| c.outcome.measured());
-    let segments = fuse_one(
-        &mut pass.fuser,
-        data,
-        &ctx.prepared,
-        &pass.poses,
-        index,
-        localised,
-    )
-    .map_err(|e| ctx.grid_err(e))?;
-    let objects = find_objects(&pass.fuser.grid, &options.objects);
+    // The floor maps take this frame's floor while the grid fuses it and the objects are
+    // found: neither side reads what the other writes, and each computes the same whichever
+    // thread runs it (the maps' updates are serial and would leave a core idle).
+    let map = tracker.floor_map.as_mut().filter(|_| !floor_unfit);
+    let check = pass.floor_check.as_mut();
+    let (fuser, poses) = (&mut pass.fuser, &pass.poses);
+    let (fused, ()) = rayon::join(
+        || {
+            let segments = fuse_one(fuser, data, &ctx.prepared, poses, index, localised)?;
+            Ok((segments, find_objects(&fuser.grid, &options.objects)))
+        },
+        || add_floor(map, check, &floor, &odom_from_base, &p.odometry),
+    );
+    drop(floor);
+    let (segments, objects) = fused.map_err(|e| ctx.grid_err(e))?;
     if options.refine_poses {
         tracker.last_objects.clone_from(&objects);
     }
@@ -240,6 +237,25 @@ fn step(
         objects,
     ));
     Ok(())
+}
+
+/// Adds a frame's floor, fused at `fused_at`, to the map the search uses (`map`: none when the
+/// floor term is off, dropped, or the frame's floor did not fit) and to both maps of the
+/// refinement's check (the second at the frame's /odom pose).
+fn add_floor(
+    map: Option<&mut FloorMap>,
+    check: Option<&mut FloorCheck>,
+    floor: &FloorPatch,
+    fused_at: &Iso3,
+    odometry: &Iso3,
+) {
+    if let Some(map) = map {
+        map.add(floor, fused_at);
+    }
+    if let Some(check) = check {
+        check.fused.add(floor, fused_at);
+        check.odometry.add(floor, odometry);
+    }
 }
 
 /// Makes frame `index` ready to fuse: classified, with the next frames ([`prepare_ahead`]),
