@@ -10,7 +10,7 @@ use nalgebra::Point3;
 use rayon::prelude::*;
 use sha2::{Digest, Sha256};
 
-use crate::fuse::grid::{BLOCK, BlockCells, Grid, Region, sigmoid};
+use crate::fuse::grid::{BLOCK, BlockCells, Grid, Region, for_each_cell, sigmoid};
 use crate::fuse::objects::Object;
 use crate::fuse::refine::Verdict;
 use crate::fuse::replay::SessionData;
@@ -379,21 +379,19 @@ fn shown_cells(
         .map(|slab| {
             let mut out = Vec::new();
             for b in slab.iter() {
-                for (o, &ev) in b.evidence.iter().enumerate() {
-                    let l = prior + ev;
+                for_each_cell(b, |o, [a, c, e]| {
+                    let l = prior + b.evidence[o];
                     if l.is_nan() || l <= near_threshold || b.views[o] < min_views {
-                        continue;
+                        return;
                     }
                     let bin = shown_bin(l, near_threshold);
-                    let [a, c, e] = [o / (BLOCK * BLOCK), o / BLOCK % BLOCK, o % BLOCK];
-                    let inside = a < b.extent[0] && c < b.extent[1] && e < b.extent[2];
                     // Above the first bin the margin is passed (see `near_threshold`).
                     let shown = bin > 0 || sigmoid(f64::from(l)) as f32 > min_posterior;
-                    if inside && bin >= first_bin && shown {
+                    if bin >= first_bin && shown {
                         let [i, j, k] = b.first_cell;
                         out.push(([(i + a) as i32, (j + c) as i32, (k + e) as i32], l));
                     }
-                }
+                });
             }
             out
         })
