@@ -1180,7 +1180,7 @@ fn corpora() -> &'static [Corpus] {
             assert!(chunks.len() >= 4, "{name}: {} chunks", chunks.len());
             let reader = SessionReader::from_bytes(Path::new(name), &bytes, Topics::default())
                 .expect("corpus reads");
-            assert_eq!(reader.index().len(), msgs.len());
+            assert_eq!(reader.collect_index().unwrap().len(), msgs.len());
             Corpus {
                 name,
                 bytes,
@@ -1231,8 +1231,16 @@ fn check_chunk_mutation(
         reader.warnings
     );
     let orig = &corpus.reader;
-    let got = reader.index();
-    for m in orig.index() {
+    // A file the scan accepted reads in order to the end: the merge reads the same bytes.
+    let got = match reader.collect_index() {
+        Ok(got) => got,
+        Err(e) => {
+            return Err(TestCaseError::fail(format!(
+                "the scan accepted it, the merge: {e}"
+            )));
+        }
+    };
+    for m in orig.collect_index().unwrap_or_default() {
         if (t0..=t1).contains(&m.log_time_ns) {
             continue; // may have come from the damaged chunk
         }
@@ -1243,7 +1251,7 @@ fn check_chunk_mutation(
             .take_while(|g| (g.log_time_ns, g.channel_id, g.sequence) == key)
             .find(|g| {
                 g.publish_time_ns == m.publish_time_ns
-                    && matches!((reader.payload(g), orig.payload(m)), (Ok(a), Ok(b)) if a == b)
+                    && matches!((reader.payload(g), orig.payload(&m)), (Ok(a), Ok(b)) if a == b)
             });
         let Some(same) = same else {
             return Err(TestCaseError::fail(format!(
@@ -1252,7 +1260,7 @@ fn check_chunk_mutation(
             )));
         };
         if reader.channels().get(&m.channel_id) == orig.channels().get(&m.channel_id) {
-            prop_assert_eq!(decoded(&reader, same), decoded(orig, m));
+            prop_assert_eq!(decoded(&reader, same), decoded(orig, &m));
         }
     }
     prop_assert!(

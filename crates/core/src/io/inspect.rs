@@ -11,13 +11,14 @@
 //! for the pixel check, then each warning has its own check over what the scan found,
 //! applied in a fixed order (so the warnings print in that order).
 
-use std::collections::BTreeMap;
 use std::path::Path;
 
 use rayon::prelude::*;
 use serde::Serialize;
 
-use crate::io::session::{Role, SessionError, SessionMsg, SessionReader, Topics, fmt_ns};
+use crate::io::session::{
+    MessageMeta, Role, SessionError, SessionMsg, SessionReader, Topics, fmt_ns,
+};
 use crate::types::geometry::Camera;
 use crate::types::lens::{Distortion, camera_changes};
 
@@ -108,7 +109,6 @@ pub fn summarize(path: &Path, topics: Topics) -> Result<Summary, SessionError> {
 /// wrong with it.
 pub fn summarize_reader(reader: &SessionReader) -> Result<Summary, SessionError> {
     let topics = reader.topics();
-    let raw = reader.index();
     let mut warnings = reader.warnings.clone();
     warnings.extend(backwards_warnings(reader));
     let mut scan = scan(reader)?;
@@ -127,15 +127,14 @@ pub fn summarize_reader(reader: &SessionReader) -> Result<Summary, SessionError>
     objects_labelled.sort();
     objects_labelled.dedup();
 
-    let start_ns = raw.first().map(|m| m.log_time_ns);
-    let end_ns = raw.last().map(|m| m.log_time_ns);
+    let (start_ns, end_ns) = reader.time_range_ns().unzip();
     Ok(Summary {
         path: reader.path().display().to_string(),
         profile: reader.profile.clone(),
         library: reader.library.clone(),
         file_bytes: reader.file_len,
         bytes_intact: reader.bytes_intact,
-        messages: raw.len(),
+        messages: usize::try_from(reader.message_count()).unwrap_or(usize::MAX),
         start_ns,
         end_ns,
         duration_s: match (start_ns, end_ns) {
@@ -159,18 +158,15 @@ pub fn summarize_reader(reader: &SessionReader) -> Result<Summary, SessionError>
 /// One row per channel, sorted by topic: message count and first and last log time.
 fn topic_rows(reader: &SessionReader) -> Vec<TopicSummary> {
     let topics = reader.topics();
-    let mut per_channel: BTreeMap<u16, (usize, Option<u64>, Option<u64>)> = BTreeMap::new();
-    for m in reader.index() {
-        let e = per_channel.entry(m.channel_id).or_insert((0, None, None));
-        e.0 += 1;
-        e.1 = Some(e.1.map_or(m.log_time_ns, |t: u64| t.min(m.log_time_ns)));
-        e.2 = Some(e.2.map_or(m.log_time_ns, |t: u64| t.max(m.log_time_ns)));
-    }
     let mut topic_rows: Vec<TopicSummary> = reader
         .channels()
         .values()
         .map(|c| {
-            let (count, first, last) = per_channel.get(&c.id).copied().unwrap_or((0, None, None));
+            let stats = reader.channel_stats(c.id);
+            let count = stats.map_or(0, |s| usize::try_from(s.count).unwrap_or(usize::MAX));
+            let (first, last) = stats
+                .map(|s| (s.first_log_time_ns, s.last_log_time_ns))
+                .unzip();
             TopicSummary {
                 topic: c.topic.clone(),
                 type_name: c.schema_name.clone(),
@@ -227,8 +223,8 @@ struct Scan {
     /// Ground-truth object names, in first-appearance order.
     gt_objects: Vec<String>,
     gt_present: bool,
-    /// Index (into [`SessionReader::index`]) of every frame, for the decode check.
-    frames: Vec<usize>,
+    /// Every frame's message, for the decode check.
+    frames: Vec<MessageMeta>,
     /// Warnings about single messages, in replay order.
     warnings: Vec<String>,
 }
@@ -261,8 +257,9 @@ impl Scan {
 /// decode (frames: only their size is read here).
 fn scan(reader: &SessionReader) -> Result<Scan, SessionError> {
     let mut s = Scan::default();
-    for (i, meta) in reader.index().iter().enumerate() {
-        let Some(m) = reader.decode(meta)? else {
+    for meta in reader.ordered() {
+        let meta = meta?;
+        let Some(m) = reader.decode(&meta)? else {
             continue;
         };
         match m.msg {
@@ -279,7 +276,7 @@ fn scan(reader: &SessionReader) -> Result<Scan, SessionError> {
                     });
                 }
                 s.frame_stamps.push((f.stamp_ns, m.log_time_ns));
-                s.frames.push(i);
+                s.frames.push(meta);
             }
             SessionMsg::CameraInfo(ci) => {
                 s.info_size = Some((ci.width, ci.height));
@@ -324,13 +321,13 @@ pub const DECODE_BATCH: usize = 64;
 
 /// Fails on the first frame, in replay order, whose image does not decode; `frames` are
 /// indexes into [`SessionReader::index`].
-fn check_frames_decode(reader: &SessionReader, frames: &[usize]) -> Result<(), SessionError> {
+fn check_frames_decode(reader: &SessionReader, frames: &[MessageMeta]) -> Result<(), SessionError> {
     // Every frame must decode: one corrupt PNG would otherwise surface only deep inside train
     // or fuse. Batches run in order and each keeps its results in order, so the first failure
     // in replay order is reported, whatever the thread count.
     for batch in frames.chunks(DECODE_BATCH) {
         let failures: Vec<Result<(), SessionError>> =
-            batch.par_iter().map(|&i| check_frame(reader, i)).collect();
+            batch.par_iter().map(|m| check_frame(reader, m)).collect();
         if let Some(e) = failures.into_iter().find_map(Result::err) {
             return Err(e);
         }
@@ -338,9 +335,9 @@ fn check_frames_decode(reader: &SessionReader, frames: &[usize]) -> Result<(), S
     Ok(())
 }
 
-/// Loads the frame at index `i` of the reader's index and decodes its image (then drops it).
-fn check_frame(reader: &SessionReader, i: usize) -> Result<(), SessionError> {
-    let Some(m) = reader.decode_at(i)? else {
+/// Loads the frame `meta` and decodes its image (then drops it).
+fn check_frame(reader: &SessionReader, meta: &MessageMeta) -> Result<(), SessionError> {
+    let Some(m) = reader.decode(meta)? else {
         return Ok(());
     };
     if let SessionMsg::Frame(f) = m.msg {

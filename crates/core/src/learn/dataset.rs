@@ -19,7 +19,9 @@ use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
 use crate::io::msgs::RegionOfInterest;
-use crate::io::session::{At, IndexScope, SessionError, SessionMsg, SessionReader, Topics};
+use crate::io::session::{
+    At, IndexScope, MessageMeta, SessionError, SessionMsg, SessionReader, Topics,
+};
 use crate::learn::features::{
     FeatureSpec, bin_planes, feature_count, histograms_of_bins, with_context,
 };
@@ -116,11 +118,12 @@ pub fn load_session(
     reader.require_frames()?;
     // Frames are kept as indexes into the reader and decoded once selected: the encoded
     // frames of a long session are never all in memory at once.
-    let mut frames: Vec<(usize, u64, String, i64)> = Vec::new();
+    let mut frames: Vec<(MessageMeta, u64, String, i64)> = Vec::new();
     let mut labels: BTreeMap<i64, Vec<RegionOfInterest>> = BTreeMap::new();
     let mut label_objects = std::collections::BTreeSet::new();
-    for (i, meta) in reader.index().iter().enumerate() {
-        let Some(m) = reader.decode(meta)? else {
+    for meta in reader.ordered() {
+        let meta = meta?;
+        let Some(m) = reader.decode(&meta)? else {
             continue;
         };
         if let SessionMsg::Label(l) = &m.msg
@@ -129,7 +132,7 @@ pub fn load_session(
             label_objects.insert(l.object.clone());
         }
         match m.msg {
-            SessionMsg::Frame(f) => frames.push((i, m.log_time_ns, m.topic, f.stamp_ns)),
+            SessionMsg::Frame(f) => frames.push((meta, m.log_time_ns, m.topic, f.stamp_ns)),
             // Several labels for one frame (several objects, or a background label next to
             // an object label) add up their rectangles.
             SessionMsg::Label(l)
@@ -154,7 +157,7 @@ pub fn load_session(
     let frames = selected
         .into_par_iter()
         .map(|(i, log_time_ns, topic, stamp_ns, regions)| {
-            let frame = match reader.decode_at(i)?.map(|m| m.msg) {
+            let frame = match reader.decode(&i)?.map(|m| m.msg) {
                 Some(SessionMsg::Frame(f)) => f,
                 _ => {
                     return Err(SessionError::Invalid {

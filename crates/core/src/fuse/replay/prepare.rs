@@ -324,7 +324,7 @@ fn floor_patch_of(
 
 /// A frame's message, decoded from the session (its pixels still as recorded).
 fn read_frame(reader: &SessionReader, fr: &FrameRef) -> Result<Frame, ReplayError> {
-    match reader.decode(&reader.index()[fr.raw_index])?.map(|m| m.msg) {
+    match reader.decode(&fr.meta)?.map(|m| m.msg) {
         Some(SessionMsg::Frame(f)) => Ok(f),
         _ => Err(ReplayError::Invalid {
             at: reader.at(Some(&fr.topic), fr.log_time_ns),

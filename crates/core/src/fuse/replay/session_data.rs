@@ -2,7 +2,7 @@
 
 use crate::io::msgs::GroundTruth;
 use crate::io::msgs::iso_from_pose;
-use crate::io::session::{At, Role, SessionMsg, SessionReader, TimedMsg};
+use crate::io::session::{At, MessageMeta, Role, SessionMsg, SessionReader, TimedMsg};
 use crate::types::geometry::{Camera, Iso3, iso_from_parts};
 use crate::types::lens::{Distortion, Rectifier, camera_changes};
 
@@ -19,8 +19,8 @@ pub const DEFAULT_MIN_SIDE_M: f64 = 4.0;
 /// One camera frame of the session, before its pixels are decoded.
 #[derive(Debug, Clone, PartialEq)]
 pub struct FrameRef {
-    /// Index into the reader's raw messages.
-    pub raw_index: usize,
+    /// The frame's message in the reader, to decode its pixels from.
+    pub meta: MessageMeta,
     /// Topic the frame came on.
     pub topic: String,
     /// MCAP log time, ns since the Unix epoch (the replay's order).
@@ -147,8 +147,8 @@ struct Collected {
 }
 
 impl Collected {
-    /// Takes one decoded message (the `raw_index`-th of the reader's).
-    fn take(&mut self, m: TimedMsg, raw_index: usize, at: At) -> Result<(), ReplayError> {
+    /// Takes one decoded message (`meta` in the reader).
+    fn take(&mut self, m: TimedMsg, meta: MessageMeta, at: At) -> Result<(), ReplayError> {
         match m.msg {
             SessionMsg::CameraInfo(ci) => self.take_camera(&ci, at)?,
             SessionMsg::TfStatic(tf) => {
@@ -186,7 +186,7 @@ impl Collected {
                 }
             }
             SessionMsg::Frame(f) => self.frames.push(FrameRef {
-                raw_index,
+                meta,
                 topic: m.topic.clone(),
                 log_time_ns: m.log_time_ns,
                 stamp_ns: f.stamp_ns,
@@ -287,13 +287,14 @@ pub fn load_session(reader: &SessionReader) -> Result<SessionData, ReplayError> 
     };
     // Messages are decoded one at a time from the reader's chunk cache: a frame's payload is
     // decoded here only for its header (stamp) and CDR check and dropped at once; its pixels
-    // are decoded in pass 2, by index.
-    for (raw_index, raw) in reader.index().iter().enumerate() {
-        let Some(m) = reader.decode(raw)? else {
+    // are decoded in pass 2, by their place in the file.
+    for meta in reader.ordered() {
+        let meta = meta?;
+        let Some(m) = reader.decode(&meta)? else {
             continue;
         };
         let at = reader.at(Some(&m.topic), m.log_time_ns);
-        c.take(m, raw_index, at)?;
+        c.take(m, meta, at)?;
     }
     let (camera, distortion, camera_frame_id) =
         c.camera.clone().ok_or_else(|| ReplayError::Invalid {

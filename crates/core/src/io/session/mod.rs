@@ -3,14 +3,15 @@
 //! Invariants: messages come out in (log_time, channel id, sequence) order whatever order the
 //! file holds them in; a truncated file yields every message of the whole chunks before the
 //! damage plus a warning (like `mcap recover`); every error names the file, and where known the
-//! topic and log time. Reading holds an index and a few decompressed chunks, not the file.
+//! topic and log time. Reading holds a chunk index and a few decompressed chunks, not the file and
+//! not an index of every message.
 
 mod reader;
 mod writer;
 
 pub use reader::{
-    ChannelInfo, IndexScope, MessageMeta, PayloadAt, SessionReader, SummarySection,
-    read_summary_section,
+    ChannelInfo, ChannelStats, IndexScope, MessageMeta, Ordered, PayloadAt, SessionReader,
+    SummarySection, read_summary_section,
 };
 pub use writer::SessionWriter;
 

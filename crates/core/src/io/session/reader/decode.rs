@@ -76,25 +76,11 @@ impl SessionReader {
         }))
     }
 
-    /// Decodes the `i`-th message of [`SessionReader::index`], as [`SessionReader::decode`].
-    pub fn decode_at(&self, i: usize) -> Result<Option<TimedMsg>, SessionError> {
-        let meta = self.messages.get(i).ok_or_else(|| SessionError::Invalid {
-            at: super::super::At {
-                path: self.path.clone(),
-                topic: None,
-                log_time_ns: None,
-            },
-            what: format!("no message {i}: the index holds {}", self.messages.len()),
-        })?;
-        self.decode(meta)
-    }
-
     /// Every message with a role, decoded, in replay order; payloads are loaded one at a
     /// time, as the iterator is advanced.
     pub fn messages(&self) -> impl Iterator<Item = Result<TimedMsg, SessionError>> + '_ {
-        self.messages
-            .iter()
-            .filter_map(|meta| self.decode(meta).transpose())
+        self.ordered()
+            .filter_map(|meta| meta.and_then(|m| self.decode(&m)).transpose())
     }
 }
 

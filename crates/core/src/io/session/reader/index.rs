@@ -1,5 +1,6 @@
-//! The index pass: one linear read of the file that keeps, per indexed message, its header and
-//! where its payload is, and per chunk its byte range; channels and schemas are taken as met.
+//! The index pass: one linear read of the file that keeps, per chunk, its byte range, the
+//! first log time and count of its indexed messages, and per channel its message count and
+//! first and last log time; channels and schemas are taken as met.
 //!
 //! Invariants: the outer MCAP reader hands out whole top-level records (chunks undecoded) and
 //! requests exactly the bytes it needs, so the bytes fed to it when it yields a record end that
@@ -18,8 +19,8 @@ use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOp
 
 use super::super::{At, SessionError};
 use super::{
-    ByteSpan, ChannelInfo, IndexScope, MessageMeta, RECORD_LENGTH_LIMIT, Segment, SessionReader,
-    read_full,
+    ByteSpan, ChannelInfo, ChannelStats, IndexScope, MessageMeta, Opening, RECORD_LENGTH_LIMIT,
+    Segment, SessionReader, read_full,
 };
 
 /// MCAP records start with an opcode (1 byte) and a 64-bit length (8 bytes).
@@ -31,6 +32,29 @@ const READ_BLOCK_BYTES: usize = 1 << 20;
 
 /// Schemas by id: (name, encoding, data).
 type Schemas = BTreeMap<u16, (String, String, Vec<u8>)>;
+
+/// The indexed messages of the chunk being scanned, committed when it ends whole.
+#[derive(Default)]
+struct Tally {
+    start_ns: Option<u64>,
+    count: u32,
+    stats: BTreeMap<u16, ChannelStats>,
+}
+
+impl Tally {
+    fn add(&mut self, meta: &MessageMeta) {
+        self.start_ns = Some(
+            self.start_ns
+                .map_or(meta.log_time_ns, |t| t.min(meta.log_time_ns)),
+        );
+        self.count += 1;
+        let one = ChannelStats::one(meta.log_time_ns);
+        self.stats
+            .entry(meta.channel_id)
+            .and_modify(|s| s.add(&one))
+            .or_insert(one);
+    }
+}
 
 /// What the scan carries from record to record.
 #[derive(Default)]
@@ -179,7 +203,7 @@ impl SessionReader {
                 st.scanned
             ));
         }
-        if self.channels.is_empty() && self.messages.is_empty() && self.warnings.is_empty() {
+        if self.channels.is_empty() && self.stats.is_empty() && self.warnings.is_empty() {
             self.warnings
                 .push("file holds no channels and no messages".to_owned());
         }
@@ -220,7 +244,12 @@ impl SessionReader {
                 len_bytes: data.len() as u64,
             };
             let segment = self.next_segment()?;
-            self.take_message(header, segment, st)?;
+            if let Some(meta) = self.take_message(header, segment, st)? {
+                let mut tally = Tally::default();
+                tally.add(&meta);
+                self.commit(tally, segment);
+                self.loose.push(meta);
+            }
             self.segments.push(Segment::Payload(span));
             return Ok(());
         }
@@ -236,7 +265,8 @@ impl SessionReader {
         st: &mut ScanState,
     ) -> Result<Step, SessionError> {
         let segment = self.next_segment()?;
-        let (kept_messages, kept_backwards) = (self.messages.len(), self.backwards.len());
+        let mut tally = Tally::default();
+        let kept_backwards = self.backwards.len();
         let (kept_bytes, kept_last, kept_scanned) =
             (self.bytes_intact, self.last_scanned, st.scanned);
         let prefix = chunk_prefix(body.len());
@@ -251,7 +281,10 @@ impl SessionReader {
                 Ok(LinearReadEvent::Record { data, opcode }) => {
                     match self.parse(opcode, data)? {
                         Record::Message { header, .. } => {
-                            self.take_message(&header, segment | u64::from(ordinal), st)?;
+                            let loc = segment | u64::from(ordinal);
+                            if let Some(meta) = self.take_message(&header, loc, st)? {
+                                tally.add(&meta);
+                            }
                             ordinal =
                                 ordinal
                                     .checked_add(1)
@@ -267,8 +300,8 @@ impl SessionReader {
                 Err(source) => {
                     let ran_out = Self::chunk_runs_out(&source);
                     if ran_out && !st.ends_with_magic {
-                        // Only whole chunks are indexed, so every indexed payload reads again.
-                        self.messages.truncate(kept_messages);
+                        // Only whole chunks are indexed (the tally is dropped), so every indexed
+                        // payload reads again.
                         self.backwards.truncate(kept_backwards);
                         self.bytes_intact = kept_bytes;
                         self.last_scanned = kept_last;
@@ -278,12 +311,32 @@ impl SessionReader {
                 }
             }
         }
+        self.commit(tally, segment);
         self.segments.push(Segment::Chunk(ByteSpan {
             offset_bytes,
             len_bytes: OPCODE_LEN_BYTES + body.len() as u64,
         }));
         self.chunk_count += 1;
         Ok(Step::Go)
+    }
+
+    /// Adds a whole segment's indexed messages to the channels' stats and the merge's plan.
+    fn commit(&mut self, tally: Tally, segment_loc: u64) {
+        let Some(start_ns) = tally.start_ns else {
+            return;
+        };
+        for (channel_id, s) in &tally.stats {
+            self.stats
+                .entry(*channel_id)
+                .and_modify(|t| t.add(s))
+                .or_insert(*s);
+        }
+        self.openings.push(Opening {
+            start_ns,
+            // `next_segment` checked that the number fits in 32 bits.
+            segment: (segment_loc >> 32) as u32,
+            indexed: tally.count,
+        });
     }
 
     /// The `loc` of the next segment's first message (its number in the high 32 bits).
@@ -363,14 +416,14 @@ impl SessionReader {
         }
     }
 
-    /// Indexes one message: its channel must be known; a log time before the channel's
-    /// previous one (in file order) is noted.
+    /// Scans one message: its channel must be known; a log time before the channel's
+    /// previous one (in file order) is noted. Returns its meta when it is indexed.
     fn take_message(
         &mut self,
         header: &mcap::records::MessageHeader,
         loc: u64,
         st: &mut ScanState,
-    ) -> Result<(), SessionError> {
+    ) -> Result<Option<MessageMeta>, SessionError> {
         st.scanned += 1;
         let prev = st.last_time.insert(header.channel_id, header.log_time);
         if let Some(prev) = prev.filter(|p| *p > header.log_time) {
@@ -393,16 +446,15 @@ impl SessionReader {
         }
         self.last_scanned = Some((header.channel_id, header.log_time));
         if self.unindexed.contains(&header.channel_id) {
-            return Ok(());
+            return Ok(None);
         }
-        self.messages.push(MessageMeta {
+        Ok(Some(MessageMeta {
             channel_id: header.channel_id,
             sequence: header.sequence,
             log_time_ns: header.log_time,
             publish_time_ns: header.publish_time,
             loc,
-        });
-        Ok(())
+        }))
     }
 
     /// Takes a header, schema or channel record; other records (indexes, statistics,

@@ -1,23 +1,30 @@
-//! Reads a session MCAP into an index of its messages sorted by (log_time, channel id,
-//! sequence), and decodes them into typed [`crate::io::session::SessionMsg`] values by topic
+//! Reads a session MCAP chunk by chunk and hands out its messages in (log_time, channel id,
+//! sequence) order, decoded into typed [`crate::io::session::SessionMsg`] values by topic
 //! role, loading each payload only when it is decoded.
 //!
-//! Invariants: the whole file is scanned once, linearly (chunk CRCs checked), so files without
-//! a summary or with a cut-off tail still read; the index holds only where each payload is (a
-//! chunk and the message's ordinal in it, or a file offset), 32 bytes a message, so memory
-//! does not grow with the payloads; payloads come from a small cache of decompressed chunks
-//! that changes how fast, never what, a message reads; the order is that of a stable sort, so
-//! it is total and the same on every run. A reader opened for the roles
+//! Invariants: the whole file is scanned once, linearly, when opened (chunk CRCs checked), so
+//! files without a summary or with a cut-off tail still read and damage is found before any
+//! output is made. The scan keeps a chunk index, not a message index: per chunk its byte
+//! range, the first log time and the count of its indexed messages (the fields of the MCAP
+//! summary's ChunkIndex records, built by the scan so that a file without a summary reads
+//! alike), and per channel its count and first and last log time. Memory then grows with the
+//! number of chunks (about 40 bytes per chunk of 256 KiB in objloc's sessions), not with the
+//! messages. [`SessionReader::ordered`] merges the chunks in order, opening a chunk only when
+//! the merge reaches its first log time, so it holds the messages of the chunks that overlap
+//! in time (one or two in a recorder's file) and a small cache of decompressed chunks that
+//! changes how fast, never what, a message reads. The order is total, (log time, channel id,
+//! sequence, place in the file), and the same on every run. A reader opened for the roles
 //! ([`IndexScope::Roles`]) scans and checks every record alike but indexes only the messages
 //! of channels whose topic has a role: a robot's IMU, lidar and diagnostics add nothing to the
-//! index (they are still read and checked).
+//! index and their chunks are not opened again.
 //!
-//! Layout: [`index`] is the scan, [`source`] the file or memory it reads and the chunk cache,
-//! [`decode`] the CDR decoding by role, [`summary`] the summary-section reader of
-//! `inspect --quick`.
+//! Layout: [`index`] is the scan, [`ordered`] the merge, [`source`] the file or memory it
+//! reads and the chunk cache, [`decode`] the CDR decoding by role, [`summary`] the
+//! summary-section reader of `inspect --quick`.
 
 mod decode;
 mod index;
+mod ordered;
 mod source;
 mod summary;
 #[cfg(test)]
@@ -32,6 +39,7 @@ use super::{At, Role, SessionError};
 use crate::io::msgs::{CompressedImage, RosMessage};
 use source::{ChunkCache, Source};
 
+pub use ordered::Ordered;
 pub use summary::{SummarySection, read_summary_section};
 
 const MCAP_MAGIC: &[u8; 8] = b"\x89MCAP0\r\n";
@@ -88,8 +96,9 @@ pub enum PayloadAt {
     },
 }
 
-/// One message of the index: its header and where its CDR payload is, without the payload.
-/// 32 bytes, so a session's index costs 32 bytes per message.
+/// One message: its header and where its CDR payload is, without the payload (32 bytes).
+/// [`SessionReader::ordered`] hands them out; a caller keeps the ones it will decode later
+/// (a replay its frames').
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct MessageMeta {
     /// Time the message was recorded, ns since the Unix epoch.
@@ -124,6 +133,46 @@ enum Segment {
     Payload(ByteSpan),
 }
 
+/// A segment the ordered merge opens: a chunk with indexed messages, or one unchunked
+/// indexed message. About 24 bytes, what the reader keeps per chunk.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct Opening {
+    /// The least log time of the segment's indexed messages: the merge opens the segment
+    /// once no message before this time is left.
+    start_ns: u64,
+    /// The segment's number in [`SessionReader::segments`].
+    segment: u32,
+    /// How many of its messages are indexed (checked when the chunk is read again).
+    indexed: u32,
+}
+
+/// A channel's indexed messages: their count and least and greatest log time.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ChannelStats {
+    /// Number of indexed messages on the channel.
+    pub count: u64,
+    /// Least log time among them, ns since the Unix epoch.
+    pub first_log_time_ns: u64,
+    /// Greatest log time among them, ns since the Unix epoch.
+    pub last_log_time_ns: u64,
+}
+
+impl ChannelStats {
+    fn one(log_time_ns: u64) -> Self {
+        Self {
+            count: 1,
+            first_log_time_ns: log_time_ns,
+            last_log_time_ns: log_time_ns,
+        }
+    }
+
+    fn add(&mut self, other: &ChannelStats) {
+        self.count += other.count;
+        self.first_log_time_ns = self.first_log_time_ns.min(other.first_log_time_ns);
+        self.last_log_time_ns = self.last_log_time_ns.max(other.last_log_time_ns);
+    }
+}
+
 /// A byte range of the file.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 struct ByteSpan {
@@ -131,8 +180,9 @@ struct ByteSpan {
     len_bytes: u64,
 }
 
-/// A session file's index: its channels and all its messages, sorted by (log time, channel id,
-/// sequence); payloads are read from the file (or memory) when decoded.
+/// A session file's chunk index and channels; its messages come out in (log time, channel
+/// id, sequence) order from [`SessionReader::ordered`], their payloads read from the file (or
+/// memory) when decoded.
 #[derive(Debug)]
 pub struct SessionReader {
     path: PathBuf,
@@ -148,7 +198,12 @@ pub struct SessionReader {
     /// (channel id, log time) of the last message scanned in file order, indexed or not:
     /// what errors about the records after it name.
     last_scanned: Option<(u16, u64)>,
-    messages: Vec<MessageMeta>,
+    /// Indexed messages per channel.
+    stats: BTreeMap<u16, ChannelStats>,
+    /// The segments with indexed messages, by (first log time, segment): the merge's plan.
+    openings: Vec<Opening>,
+    /// Indexed messages outside any chunk, in file order (a file written without chunks).
+    loose: Vec<MessageMeta>,
     segments: Vec<Segment>,
     chunk_count: usize,
     source: Source,
@@ -265,7 +320,9 @@ impl SessionReader {
             scope: IndexScope::All,
             unindexed: std::collections::BTreeSet::new(),
             last_scanned: None,
-            messages: Vec::new(),
+            stats: BTreeMap::new(),
+            openings: Vec::new(),
+            loose: Vec::new(),
             segments: Vec::new(),
             chunk_count: 0,
             source,
@@ -288,15 +345,12 @@ impl SessionReader {
         Ok(())
     }
 
-    /// Sorts the index into replay order: by (log time, channel id, sequence), equal keys in
-    /// file order, so the order is total and reproducible.
+    /// Orders the merge's plan by first log time (ties in file order).
     fn finish(&mut self) {
-        // `loc` increases in file order and is unique, so this in-place sort gives exactly the
-        // order of a stable sort by the first three keys, without its scratch buffer (half the
-        // index).
-        self.messages
-            .sort_unstable_by_key(|m| (m.log_time_ns, m.channel_id, m.sequence, m.loc));
-        self.messages.shrink_to_fit();
+        self.openings
+            .sort_unstable_by_key(|o| (o.start_ns, o.segment));
+        self.openings.shrink_to_fit();
+        self.loose.shrink_to_fit();
         self.segments.shrink_to_fit();
     }
 
@@ -315,10 +369,28 @@ impl SessionReader {
         &self.channels
     }
 
-    /// The indexed messages (all, or those of the roles: [`IndexScope`]) in (log_time, channel
-    /// id, sequence) order, without their payloads.
-    pub fn index(&self) -> &[MessageMeta] {
-        &self.messages
+    /// Every indexed message (all, or those of the roles: [`IndexScope`]) in a vector, in the
+    /// order of [`SessionReader::ordered`]: 32 bytes a message, for tests and small files.
+    pub fn collect_index(&self) -> Result<Vec<MessageMeta>, SessionError> {
+        self.ordered().collect()
+    }
+
+    /// Number of indexed messages.
+    pub fn message_count(&self) -> u64 {
+        self.stats.values().map(|s| s.count).sum()
+    }
+
+    /// The indexed messages of channel `channel_id`: count, first and last log time; `None`
+    /// when it has none.
+    pub fn channel_stats(&self, channel_id: u16) -> Option<ChannelStats> {
+        self.stats.get(&channel_id).copied()
+    }
+
+    /// Least and greatest log time of the indexed messages; `None` without any.
+    pub fn time_range_ns(&self) -> Option<(u64, u64)> {
+        let first = self.stats.values().map(|s| s.first_log_time_ns).min()?;
+        let last = self.stats.values().map(|s| s.last_log_time_ns).max()?;
+        Some((first, last))
     }
 
     /// Number of chunks the file holds (before any damage that ended the scan).
@@ -343,16 +415,14 @@ impl SessionReader {
     /// Number of messages on `topic` in the index (0 for a topic without a role under
     /// [`IndexScope::Roles`]).
     pub fn count(&self, topic: &str) -> usize {
-        let ids: Vec<u16> = self
+        let n: u64 = self
             .channels
             .values()
             .filter(|c| c.topic == topic)
-            .map(|c| c.id)
-            .collect();
-        self.messages
-            .iter()
-            .filter(|m| ids.contains(&m.channel_id))
-            .count()
+            .filter_map(|c| self.stats.get(&c.id))
+            .map(|s| s.count)
+            .sum();
+        usize::try_from(n).unwrap_or(usize::MAX)
     }
 
     /// A location in this file for errors: `topic`, if given, at log time `log_time_ns`.

@@ -15,7 +15,7 @@ use std::sync::{Arc, Mutex, PoisonError};
 use mcap::records::{Record, op};
 use mcap::sans_io::linear_reader::LinearReadEvent;
 
-use super::super::SessionError;
+use super::super::{At, SessionError};
 use super::index::{OPCODE_LEN_BYTES, chunk_reader, feed_parts};
 use super::{ByteSpan, MessageMeta, Segment, SessionReader};
 
@@ -63,11 +63,22 @@ impl Source {
 
 /// One decompressed chunk: its messages' headers and payloads, by ordinal.
 #[derive(Debug)]
-struct ChunkPayloads {
+pub(super) struct ChunkPayloads {
     /// Every payload of the chunk, one after another.
     bytes: Vec<u8>,
-    /// Per ordinal: (channel id, sequence, log time ns, start, end) of its payload in `bytes`.
-    messages: Vec<(u16, u32, u64, usize, usize)>,
+    /// Per ordinal: the message's header and its payload's place in `bytes`.
+    pub(super) messages: Vec<ChunkMessage>,
+}
+
+/// A message of a decompressed chunk.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct ChunkMessage {
+    pub(super) channel_id: u16,
+    pub(super) sequence: u32,
+    pub(super) log_time_ns: u64,
+    pub(super) publish_time_ns: u64,
+    start: usize,
+    end: usize,
 }
 
 /// The most recently used decompressed chunks, least recent first.
@@ -130,20 +141,13 @@ impl SessionReader {
                 Ok(f(&bytes))
             }
             Some(Segment::Chunk(span)) => {
-                let key = meta.segment();
-                let payloads = match self.cache.get(key) {
-                    Some(p) => p,
-                    None => {
-                        let p = Arc::new(self.load_chunk(span, meta)?);
-                        self.cache.put(key, Arc::clone(&p));
-                        p
-                    }
-                };
+                let payloads = self.chunk_payloads(meta.segment(), span, || self.at_meta(meta))?;
                 let ordinal = meta.ordinal();
                 let found = payloads.messages.get(ordinal as usize).filter(|m| {
-                    (m.0, m.1, m.2) == (meta.channel_id, meta.sequence, meta.log_time_ns)
+                    (m.channel_id, m.sequence, m.log_time_ns)
+                        == (meta.channel_id, meta.sequence, meta.log_time_ns)
                 });
-                let Some(&(_, _, _, start, end)) = found else {
+                let Some(&ChunkMessage { start, end, .. }) = found else {
                     return Err(SessionError::Invalid {
                         at: self.at_meta(meta),
                         what: format!(
@@ -161,6 +165,22 @@ impl SessionReader {
         }
     }
 
+    /// The chunk numbered `segment` (at `span`) decompressed, from the cache or read again;
+    /// `at` names it in errors.
+    pub(super) fn chunk_payloads(
+        &self,
+        segment: usize,
+        span: ByteSpan,
+        at: impl Fn() -> At,
+    ) -> Result<Arc<ChunkPayloads>, SessionError> {
+        if let Some(p) = self.cache.get(segment) {
+            return Ok(p);
+        }
+        let p = Arc::new(self.load_chunk(span, at)?);
+        self.cache.put(segment, Arc::clone(&p));
+        Ok(p)
+    }
+
     /// The bytes of `span`, read from the source again.
     fn read_span(&self, span: ByteSpan) -> Result<Vec<u8>, SessionError> {
         self.source
@@ -171,12 +191,11 @@ impl SessionReader {
             })
     }
 
-    /// Reads the chunk record at `span` again and decompresses it; `meta`, a message in it,
-    /// names it in errors.
+    /// Reads the chunk record at `span` again and decompresses it; `at` names it in errors.
     fn load_chunk(
         &self,
         span: ByteSpan,
-        meta: &MessageMeta,
+        at: impl Fn() -> At,
     ) -> Result<ChunkPayloads, SessionError> {
         let record = self.read_span(span)?;
         let body_len = span.len_bytes - OPCODE_LEN_BYTES;
@@ -184,7 +203,7 @@ impl SessionReader {
             || record.get(1..9) != Some(&body_len.to_le_bytes()[..])
         {
             return Err(SessionError::Invalid {
-                at: self.at_meta(meta),
+                at: at(),
                 what: format!(
                     "no chunk record of {} bytes at byte {} any more (the file changed since it was opened?)",
                     span.len_bytes, span.offset_bytes
@@ -192,7 +211,7 @@ impl SessionReader {
             });
         }
         let mcap_err = |source| SessionError::Mcap {
-            at: self.at_meta(meta),
+            at: at(),
             what: format!(
                 "the chunk at byte {} read when the file was opened but not now",
                 span.offset_bytes
@@ -216,13 +235,14 @@ impl SessionReader {
                     {
                         let start = out.bytes.len();
                         out.bytes.extend_from_slice(&data);
-                        out.messages.push((
-                            header.channel_id,
-                            header.sequence,
-                            header.log_time,
+                        out.messages.push(ChunkMessage {
+                            channel_id: header.channel_id,
+                            sequence: header.sequence,
+                            log_time_ns: header.log_time,
+                            publish_time_ns: header.publish_time,
                             start,
-                            out.bytes.len(),
-                        ));
+                            end: out.bytes.len(),
+                        });
                     }
                 }
             }

@@ -10,6 +10,8 @@ use mcap::records::MessageHeader;
 use rayon::prelude::*;
 
 use super::*;
+
+mod merge;
 use crate::io::msgs::{Header, RosMessage, Twist, TwistStamped};
 use crate::io::session::{SessionMsg, Topics};
 
@@ -115,7 +117,8 @@ type ReadBack = (u64, u16, u32, u64, Vec<u8>);
 /// Every message of `reader` in index order, with its payload.
 fn read_all(reader: &SessionReader) -> Vec<ReadBack> {
     reader
-        .index()
+        .collect_index()
+        .unwrap()
         .iter()
         .map(|m| {
             let data = reader.payload(m).unwrap();
@@ -219,16 +222,17 @@ fn a_cache_smaller_than_the_chunk_count_reads_what_memory_reads() {
         reader.chunk_count()
     );
     assert_eq!(reader.chunk_count(), in_memory.chunk_count());
-    assert_eq!(reader.index(), in_memory.index());
+    let index = reader.collect_index().unwrap();
+    assert_eq!(index, in_memory.collect_index().unwrap());
     let expected = old_order(&bytes);
     assert_eq!(expected.len(), 300);
     assert_eq!(read_all(&in_memory), expected);
     // Jumping between chunks (stride 37 through 300 messages) evicts all the time.
-    let n = reader.index().len();
+    let n = index.len();
     for k in 0..n {
         let i = (k * 37) % n;
         assert_eq!(
-            reader.payload(&reader.index()[i]).unwrap(),
+            reader.payload(&index[i]).unwrap(),
             expected[i].4,
             "message {i}"
         );
@@ -237,7 +241,7 @@ fn a_cache_smaller_than_the_chunk_count_reads_what_memory_reads() {
     let parallel: Vec<Vec<u8>> = (0..n)
         .into_par_iter()
         .rev()
-        .map(|i| reader.payload(&reader.index()[i]).unwrap())
+        .map(|i| reader.payload(&index[i]).unwrap())
         .collect();
     assert!(parallel.iter().rev().zip(&expected).all(|(a, b)| *a == b.4));
     fn sync<T: Sync + Send>(_: &T) {}
@@ -253,11 +257,11 @@ fn an_unchunked_file_reads_from_file_offsets() {
     let bytes = write(&path, mcap::WriteOptions::new().use_chunks(false), &msgs);
     let reader = SessionReader::open(&path, Topics::default()).unwrap();
     assert_eq!(reader.chunk_count(), 0);
-    assert_eq!(reader.index().len(), 12);
+    assert_eq!(reader.collect_index().unwrap().len(), 12);
     assert!(reader.warnings.is_empty(), "{:?}", reader.warnings);
     // Every record up to the footer; the closing magic is not a record.
     assert_eq!(reader.bytes_intact, bytes.len() as u64 - 8);
-    for (meta, (t, _, seq, data)) in reader.index().iter().zip(&msgs) {
+    for (meta, (t, _, seq, data)) in reader.collect_index().unwrap().iter().zip(&msgs) {
         let Some(PayloadAt::File {
             offset_bytes,
             len_bytes,
@@ -374,6 +378,7 @@ fn a_chunk_damaged_after_indexing_is_an_error_naming_file_topic_and_log_time() {
     let reader = SessionReader::open(&path, Topics::default())
         .unwrap()
         .with_chunk_cache(1);
+    let index = reader.collect_index().unwrap();
     // Damage chunk 2 in place (same file, same inode), after the index was built.
     let c = &chunks[2];
     let at = c.chunk_start_offset + c.chunk_length - c.compressed_size / 2;
@@ -381,8 +386,7 @@ fn a_chunk_damaged_after_indexing_is_an_error_naming_file_topic_and_log_time() {
     f.seek(SeekFrom::Start(at)).unwrap();
     f.write_all(&[bytes[at as usize] ^ 0x01]).unwrap();
     drop(f);
-    let meta = *reader
-        .index()
+    let meta = *index
         .iter()
         .find(|m| m.log_time_ns == c.message_start_time)
         .unwrap();
@@ -406,8 +410,20 @@ fn a_chunk_damaged_after_indexing_is_an_error_naming_file_topic_and_log_time() {
     );
     assert!(e.to_lowercase().contains("crc"), "{e}");
     // Chunks left alone still read.
-    let first = reader.index()[0];
+    let first = index[0];
     assert_eq!(reader.payload(&first).unwrap(), old_order(&bytes)[0].4);
+    // The merge reads chunk 2 again on its way: an error naming the file and the chunk, once,
+    // after the messages before it.
+    let mut ordered = reader.ordered();
+    let before = ordered.by_ref().take_while(Result::is_ok).count();
+    assert!(before > 0 && before < index.len(), "{before}");
+    assert!(ordered.next().is_none());
+    let e = reader.ordered().find_map(Result::err).unwrap().to_string();
+    assert!(
+        e.starts_with(&format!("{} at log time ", path.display()))
+            && e.contains(&format!("the chunk at byte {}", c.chunk_start_offset)),
+        "{e}"
+    );
 }
 
 #[test]
@@ -658,14 +674,17 @@ fn a_reader_for_the_roles_checks_and_names_what_it_does_not_index() {
     std::fs::write(&cut_path, without_chunk(&bytes, &inner)).unwrap();
     let all = open(&cut_path, IndexScope::All).unwrap();
     let roles = open(&cut_path, IndexScope::Roles).unwrap();
-    assert_eq!(roles.index().len(), 120);
-    assert!(all.index().len() < 420);
+    assert_eq!(roles.collect_index().unwrap().len(), 120);
+    assert_eq!(roles.message_count(), 120);
+    let all_held = all.collect_index().unwrap().len();
+    assert!(all_held < 420);
+    assert_eq!(all.message_count(), all_held as u64);
     assert_eq!(roles.warnings, all.warnings);
     assert_eq!(roles.warnings.len(), 1, "{:?}", roles.warnings);
     assert!(
         roles.warnings[0].contains(&format!(
             "its summary counts 420 messages, the file holds {}",
-            all.index().len()
+            all_held
         )),
         "{:?}",
         roles.warnings
@@ -715,7 +734,7 @@ fn a_chunk_cut_out_is_told_by_the_summarys_count() {
     let cut_path = dir.path().join("cut.mcap");
     std::fs::write(&cut_path, without_chunk(&bytes, &chunk_indexes(&bytes)[2])).unwrap();
     let reader = SessionReader::open(&cut_path, Topics::default()).unwrap();
-    let held = reader.index().len();
+    let held = reader.collect_index().unwrap().len();
     assert!(held < 600, "{held}");
     assert_eq!(
         reader.warnings,

@@ -1,0 +1,97 @@
+//! Unit tests of the ordered merge: its order against the sort of every message on files
+//! whose chunks follow, overlap or span each other, and what it holds at once.
+
+use super::*;
+
+/// Log times drawn from `seed` within a window that slides with the message number, so
+/// neighbouring chunks overlap in time by `spread_ns`, across 3 channels (sequence numbers
+/// repeat, to exercise the later keys).
+fn jittered(n: u64, spread_ns: u64, seed: u64) -> Written {
+    let mut state = seed.wrapping_mul(0x9e37_79b9_7f4a_7c15) | 1;
+    (0..n)
+        .map(|k| {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            let t = 1_000_000_000 + k * 1_000_000 + state % spread_ns.max(1);
+            let ch = (state >> 40) as u16 % 3;
+            let data = if ch == 2 {
+                twist_cdr(t as i64, k as f64)
+            } else {
+                noise(k, 40 + (state >> 50) as usize % 200)
+            };
+            (t, ch, (k / 7) as u32, data)
+        })
+        .collect()
+}
+
+/// The merge over chunks gives exactly the order of sorting every message, whether chunks
+/// follow each other in time, overlap their neighbours or span most of the session, with
+/// chunked and unchunked files alike.
+#[test]
+fn the_merge_is_the_sort_of_every_message_however_chunks_overlap() {
+    let dir = tempfile::tempdir().unwrap();
+    for (seed, spread_ns) in [(1, 0), (2, 3_000_000), (3, 40_000_000), (4, 900_000_000)] {
+        let msgs = jittered(400, spread_ns, seed);
+        for (name, opts) in [
+            ("small", small_chunks()),
+            ("tiny", mcap::WriteOptions::new().chunk_size(Some(300))),
+            ("flat", mcap::WriteOptions::new().use_chunks(false)),
+        ] {
+            let path = dir.path().join(format!("{name}-{seed}.mcap"));
+            let bytes = write(&path, opts, &msgs);
+            let reader = SessionReader::open(&path, Topics::default()).unwrap();
+            assert!(name == "flat" || reader.chunk_count() >= 10, "{name}");
+            assert_eq!(
+                read_all(&reader),
+                old_order(&bytes),
+                "{name}, spread {spread_ns}"
+            );
+            assert_eq!(reader.message_count(), 400);
+        }
+    }
+}
+
+/// The merge holds the messages of the chunks that overlap the current time, not the file's:
+/// on chunks that follow each other in time, never more than two chunks' worth.
+#[test]
+fn the_merge_holds_a_few_chunks_not_the_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("long.mcap");
+    let bytes = write(&path, small_chunks(), &increasing(3000));
+    let reader = SessionReader::open(&path, Topics::default()).unwrap();
+    assert_eq!(chunk_indexes(&bytes).len(), reader.chunk_count());
+    assert!(
+        reader.chunk_count() >= 100,
+        "{} chunks",
+        reader.chunk_count()
+    );
+    let most_in_a_chunk = reader.openings.iter().map(|o| o.indexed).max().unwrap() as usize;
+    let mut ordered = reader.ordered();
+    let (mut held, mut n) = (0, 0);
+    while let Some(m) = ordered.next() {
+        m.unwrap();
+        held = held.max(ordered.pending() + 1);
+        n += 1;
+    }
+    assert_eq!(n, 3000);
+    assert!(
+        held <= 2 * most_in_a_chunk,
+        "held {held}, a chunk ~{most_in_a_chunk}"
+    );
+    // With every chunk spanning the whole session the merge must hold everything, as a full
+    // index would: the bound is a property of the file, not a cap that drops messages.
+    let spread = jittered(600, 1_000_000_000_000, 5);
+    let wide = dir.path().join("wide.mcap");
+    write(&wide, small_chunks(), &spread);
+    let reader = SessionReader::open(&wide, Topics::default()).unwrap();
+    let mut ordered = reader.ordered();
+    let (mut held, mut n) = (0, 0);
+    while let Some(m) = ordered.next() {
+        m.unwrap();
+        held = held.max(ordered.pending() + 1);
+        n += 1;
+    }
+    assert_eq!(n, 600);
+    assert!(held > 300, "held {held}");
+}
