@@ -359,7 +359,7 @@ pub fn write_outputs(f: &Fused, report: Option<&Path>, grid: Option<&Path>) -> a
         }
     }
     if let Some(p) = report {
-        objloc_core::io::output::write_atomic(p, f.report.to_json().as_bytes())
+        objloc_core::io::output::write_atomic_with(p, |w| f.report.write_json(w))
             .with_context(|| format!("writing the report {}", p.display()))?;
     }
     Ok(())

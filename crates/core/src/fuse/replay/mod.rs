@@ -41,11 +41,11 @@ use prepare::{Context, Prepared, floor_params, prepare, step_image};
 
 use thiserror::Error;
 
-use crate::fuse::grid::{Budget, Grid, GridError, GridStorage, TileEvidence};
+use crate::fuse::grid::{Budget, Grid, GridError, GridStorage};
 use crate::fuse::locate::{View, ray_centre};
 use crate::fuse::motion::{BlurMode, Segment};
 use crate::fuse::objects::{Object, ObjectParams, find_objects_with_cells};
-use crate::fuse::refine::{Correction, detections};
+use crate::fuse::refine::Correction;
 use crate::io::session::{At, EncodedMedia, SessionError, SessionReader};
 use crate::types::geometry::Iso3;
 use crate::types::image::Rgb8;
@@ -470,13 +470,7 @@ fn locate_from_detections(ctx: &Context<'_>, poses: &[Iso3], objects: &mut [Obje
         .zip(poses)
         .map(|(p, pose)| View {
             odom_from_camera: pose * p.mount,
-            detections: detections(&TileEvidence::from_probabilities(
-                p.probs().rows,
-                p.probs().cols,
-                p.probs().tile_px,
-                &p.probs().p,
-                ctx.prior,
-            )),
+            detections: p.detections().to_vec(),
         })
         .collect();
     for o in objects.iter_mut() {

@@ -241,7 +241,7 @@ fn step(
             odometry: p.odometry,
             correction,
             image: step_image(ctx.reader, data, p)?,
-            probs: p.probs().clone(),
+            probs: TileProbs::clone(&p.probs()),
             segments,
             cells_updated,
             objects: objects.clone(),
@@ -262,6 +262,8 @@ fn step(
         max_probability,
         objects,
     ));
+    // Nothing after this frame reads its probabilities; a later pass classifies it again.
+    p.release();
     Ok(())
 }
 
@@ -516,7 +518,7 @@ fn fuse_one(
     }
     let odom_from_camera = odom_from_base * p.mount;
     fuser.last_cells_updated =
-        fuser.integrate(&odom_from_camera, &odom_from_base, &data.camera, p.probs())?;
+        fuser.integrate(&odom_from_camera, &odom_from_base, &data.camera, &p.probs())?;
     Ok(segments)
 }
 

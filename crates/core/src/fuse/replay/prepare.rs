@@ -1,20 +1,23 @@
 //! Preparing a replay: the session read, the options checked against it, and the frames that
 //! can be fused listed. The pass classifies them (with their detections, when refining) and
-//! makes their floor patches a few frames ahead of their use, from one decode of each frame;
-//! the probabilities are kept for the final check and a rolled-back pass. When observers
+//! makes their floor patches a few frames ahead of their use, from one decode of each frame.
+//! A frame's tile probabilities live from its classifying until it is fused (a rolled-back
+//! pass classifies it again, to the same values: classifying is a pure function of the
+//! pixels); what the end of the replay needs of them (its detection clusters, its detections
+//! for `--locate detections`) is kept for the whole replay. When observers
 //! want the frames and a frame cannot be shown as recorded (a distorted lens), that decode
 //! is kept until the frame is fused, so it is not decoded and rectified a second time.
 
 use crate::fuse::floor::{FloorParams, FloorPatch, floor_patch};
 use crate::fuse::grid::{GridError, GridSpec, TileEvidence, logit};
-use crate::fuse::refine::{DETECTION_DELTA, detection_clusters};
+use crate::fuse::refine::{DETECTION_DELTA, Detection, detections};
 use crate::io::session::{At, Frame, SessionMsg, SessionReader, fmt_ns};
 use crate::types::geometry::Iso3;
 use crate::types::image::Rgb8;
 use crate::types::probs::{FrameClassifier, TileProbs};
 
 use std::collections::BTreeMap;
-use std::sync::{Mutex, OnceLock};
+use std::sync::{Arc, Mutex, OnceLock};
 
 use super::*;
 
@@ -26,42 +29,60 @@ pub(super) struct Prepared {
     /// The camera mount at the frame's stamp (base_from_camera).
     pub(super) mount: Iso3,
     /// Set once by the first pass, a few frames ahead of the frame's use ([`prepare_ahead`]).
-    classified: OnceLock<Classified>,
+    kept: OnceLock<Kept>,
+    /// Its tile probabilities, from classifying until it is fused ([`Prepared::release`]):
+    /// a replay holds a few frames' (3.8 kB each at 320 x 240), not every frame's.
+    probs: Mutex<Option<Arc<TileProbs>>>,
     /// The frame as decoded for classifying, kept for the observers until it is fused when
     /// [`Context::keep_decoded`] says so (at most [`PREPARE_CHUNK`] frames at once).
     decoded: Mutex<Option<Rgb8>>,
 }
 
-/// What the classifier made of a frame.
-struct Classified {
-    probs: TileProbs,
+/// What the classifier made of a frame that the replay keeps to its end.
+#[derive(Default)]
+struct Kept {
     /// Its detection clusters (pixels), when refining.
     clusters: Vec<[f64; 2]>,
+    /// Its detections, when objects are located from them ([`Locate::Detections`]).
+    detections: Vec<Detection>,
 }
 
-/// What a frame reads as before it is classified: no tiles, no detections. The pass
-/// classifies every frame before it fuses it, so nothing reads this but by mistake.
-static UNCLASSIFIED: Classified = Classified {
-    probs: TileProbs {
-        rows: 0,
-        cols: 0,
-        tile_px: 1,
-        p: Vec::new(),
-    },
-    clusters: Vec::new(),
-};
-
 impl Prepared {
-    fn classified(&self) -> &Classified {
-        self.classified.get().unwrap_or(&UNCLASSIFIED)
+    fn kept(&self) -> &Kept {
+        static NONE: Kept = Kept {
+            clusters: Vec::new(),
+            detections: Vec::new(),
+        };
+        // The pass classifies every frame before it fuses it, so nothing reads NONE but by
+        // mistake.
+        self.kept.get().unwrap_or(&NONE)
     }
-    /// Its tile probabilities.
-    pub(super) fn probs(&self) -> &TileProbs {
-        &self.classified().probs
+
+    /// Its tile probabilities: empty outside the span from its classifying to its fusing.
+    pub(super) fn probs(&self) -> Arc<TileProbs> {
+        lock(&self.probs).clone().unwrap_or_else(|| {
+            Arc::new(TileProbs {
+                rows: 0,
+                cols: 0,
+                tile_px: 1,
+                p: Vec::new(),
+            })
+        })
     }
+
+    /// Drops its tile probabilities once it is fused.
+    pub(super) fn release(&self) {
+        *lock(&self.probs) = None;
+    }
+
     /// Its detection clusters (pixels), when refining.
     pub(super) fn clusters(&self) -> &[[f64; 2]] {
-        &self.classified().clusters
+        &self.kept().clusters
+    }
+
+    /// Its detections, when objects are located from them.
+    pub(super) fn detections(&self) -> &[Detection] {
+        &self.kept().detections
     }
 }
 
@@ -167,7 +188,8 @@ pub(super) fn prepare<'a>(
             frame,
             odometry,
             mount,
-            classified: OnceLock::new(),
+            kept: OnceLock::new(),
+            probs: Mutex::new(None),
             decoded: Mutex::new(None),
         })
         .collect();
@@ -238,7 +260,7 @@ pub(super) fn prepare_ahead(
     let ready = ctx
         .prepared
         .get(index)
-        .is_none_or(|p| p.classified.get().is_some());
+        .is_none_or(|p| lock(&p.probs).is_some());
     if ready && !wants_patch(index) {
         return Ok(());
     }
@@ -263,34 +285,48 @@ fn prepare_frame(
     p: &Prepared,
     floor: Option<&FloorParams>,
 ) -> Result<Option<FloorPatch>, ReplayError> {
-    if p.classified.get().is_some() && floor.is_none() {
+    let held = lock(&p.probs).clone();
+    if held.is_some() && floor.is_none() {
         return Ok(None);
     }
     let image = decode_frame(ctx.reader, &ctx.data, &p.frame)?;
-    let classified = p.classified.get_or_init(|| {
-        let probs = ctx.classifier.classify(&image);
-        let clusters = if ctx.options.refine_poses {
-            detection_clusters(&TileEvidence::from_probabilities(
-                probs.rows,
-                probs.cols,
-                probs.tile_px,
-                &probs.p,
-                ctx.prior,
-            ))
-        } else {
-            Vec::new()
-        };
-        Classified { probs, clusters }
-    });
-    let patch = floor.map(|fp| floor_patch_of(ctx, &image, &classified.probs, &p.mount, fp));
+    let probs = held.unwrap_or_else(|| Arc::new(ctx.classifier.classify(&image)));
+    p.kept.get_or_init(|| kept_of(ctx, &probs));
+    *lock(&p.probs) = Some(Arc::clone(&probs));
+    let patch = floor.map(|fp| floor_patch_of(ctx, &image, &probs, &p.mount, fp));
     if ctx.keep_decoded {
         *lock(&p.decoded) = Some(image);
     }
     Ok(patch)
 }
 
+/// What the replay keeps of a frame's probabilities: its detection clusters when refining,
+/// its detections when objects are located from them.
+fn kept_of(ctx: &Context<'_>, probs: &TileProbs) -> Kept {
+    let refine = ctx.options.refine_poses;
+    let locate = ctx.options.locate == Locate::Detections;
+    if !refine && !locate {
+        return Kept::default();
+    }
+    let all = detections(&TileEvidence::from_probabilities(
+        probs.rows,
+        probs.cols,
+        probs.tile_px,
+        &probs.p,
+        ctx.prior,
+    ));
+    Kept {
+        clusters: if refine {
+            all.iter().map(|d| d.centroid_px).collect()
+        } else {
+            Vec::new()
+        },
+        detections: if locate { all } else { Vec::new() },
+    }
+}
+
 /// The slot's guard: a panic elsewhere while it was held left nothing half-written in it.
-fn lock(slot: &Mutex<Option<Rgb8>>) -> std::sync::MutexGuard<'_, Option<Rgb8>> {
+fn lock<T>(slot: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
     slot.lock()
         .unwrap_or_else(std::sync::PoisonError::into_inner)
 }
