@@ -153,7 +153,8 @@ fn closest_per_frame<'a>(
     let mut chosen: Vec<(f64, &Sighting)> = Vec::new();
     for s in sightings {
         let d = ray_distance(s, c);
-        if d > gate_m {
+        // A NaN distance (a degenerate ray) is left out too.
+        if d.is_nan() || d > gate_m {
             continue;
         }
         match chosen.last_mut() {
@@ -181,7 +182,8 @@ fn closest_per_recent_frame<'a>(
     let mut chosen: Vec<(f64, &Sighting)> = Vec::new();
     for s in sightings.iter().rev() {
         let d = ray_distance(s, c);
-        if d > gate_m {
+        // A NaN distance (a degenerate ray) is left out too.
+        if d.is_nan() || d > gate_m {
             continue;
         }
         let full = chosen.len() == max_frames;

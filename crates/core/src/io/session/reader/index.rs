@@ -253,7 +253,7 @@ impl SessionReader {
             self.segments.push(Segment::Payload(span));
             return Ok(());
         }
-        self.take_record(record, &mut st.schemas)
+        self.take_record(record, st)
     }
 
     /// Indexes the chunk record with body `body` at `offset_bytes`, or, when it does not
@@ -293,7 +293,7 @@ impl SessionReader {
                                         what: "a chunk holds more than 2^32 messages".into(),
                                     })?;
                         }
-                        other => self.take_record(other, &mut st.schemas)?,
+                        other => self.take_record(other, st)?,
                     }
                     self.bytes_intact = st.fed_bytes;
                 }
@@ -459,11 +459,8 @@ impl SessionReader {
 
     /// Takes a header, schema or channel record; other records (indexes, statistics,
     /// attachments) are not needed.
-    fn take_record(
-        &mut self,
-        record: Record<'_>,
-        schemas: &mut Schemas,
-    ) -> Result<(), SessionError> {
+    fn take_record(&mut self, record: Record<'_>, st: &mut ScanState) -> Result<(), SessionError> {
+        let schemas = &mut st.schemas;
         match record {
             Record::Header(h) => {
                 self.profile = h.profile;
@@ -492,10 +489,30 @@ impl SessionReader {
                         })?
                 };
                 // Whether indexed follows the channel's latest declaration, as its topic does.
-                if self.scope == IndexScope::Roles && self.topics.role_of(&c.topic).is_none() {
-                    self.unindexed.insert(c.id);
-                } else {
+                let indexed =
+                    self.scope == IndexScope::All || self.topics.role_of(&c.topic).is_some();
+                // The merge reads the final declaration: a channel whose messages would be
+                // indexed on one side of a declaration and not on the other is refused (the
+                // MCAP spec asks every declaration of an id to be the same).
+                let was_indexed = !self.unindexed.contains(&c.id);
+                if indexed != was_indexed && st.last_time.contains_key(&c.id) {
+                    let before = self.channels.get(&c.id).map_or("", |o| o.topic.as_str());
+                    return Err(SessionError::Invalid {
+                        at: At {
+                            path: self.path.clone(),
+                            topic: Some(c.topic.clone()),
+                            log_time_ns: st.last_time.get(&c.id).copied(),
+                        },
+                        what: format!(
+                            "channel {} is declared again on another topic ({before} before) after messages on it",
+                            c.id
+                        ),
+                    });
+                }
+                if indexed {
                     self.unindexed.remove(&c.id);
+                } else {
+                    self.unindexed.insert(c.id);
                 }
                 self.channels.insert(
                     c.id,

@@ -134,7 +134,7 @@ enum Segment {
 }
 
 /// A segment the ordered merge opens: a chunk with indexed messages, or one unchunked
-/// indexed message. About 24 bytes, what the reader keeps per chunk.
+/// indexed message: 16 bytes, with its [`Segment`] (24) what the reader keeps per chunk.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 struct Opening {
     /// The least log time of the segment's indexed messages: the merge opens the segment

@@ -121,9 +121,7 @@ impl Ordered<'_> {
                 let payloads = r.chunk_payloads(o.segment as usize, span, at)?;
                 let before = self.pending.len();
                 for (ordinal, m) in payloads.messages.iter().enumerate() {
-                    if r.unindexed.contains(&m.channel_id)
-                        || !r.channels.contains_key(&m.channel_id)
-                    {
+                    if r.unindexed.contains(&m.channel_id) {
                         continue;
                     }
                     self.pending.push(Reverse(ByOrder(MessageMeta {

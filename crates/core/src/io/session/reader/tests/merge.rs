@@ -4,8 +4,8 @@
 use super::*;
 
 /// Log times drawn from `seed` within a window that slides with the message number, so
-/// neighbouring chunks overlap in time by `spread_ns`, across 3 channels (sequence numbers
-/// repeat, to exercise the later keys).
+/// neighbouring chunks overlap in time by `spread_ns`, rounded to 4 ms, across 3 channels
+/// (log times and sequence numbers repeat, to exercise the later keys).
 fn jittered(n: u64, spread_ns: u64, seed: u64) -> Written {
     let mut state = seed.wrapping_mul(0x9e37_79b9_7f4a_7c15) | 1;
     (0..n)
@@ -13,7 +13,10 @@ fn jittered(n: u64, spread_ns: u64, seed: u64) -> Written {
             state ^= state << 13;
             state ^= state >> 7;
             state ^= state << 17;
-            let t = 1_000_000_000 + k * 1_000_000 + state % spread_ns.max(1);
+            // Rounded to 4 ms, so that several messages (across channels, chunks and equal
+            // sequence numbers) share a log time and the later keys decide.
+            let t =
+                1_000_000_000 + (k * 1_000_000 + state % spread_ns.max(1)) / 4_000_000 * 4_000_000;
             let ch = (state >> 40) as u16 % 3;
             let data = if ch == 2 {
                 twist_cdr(t as i64, k as f64)
@@ -94,4 +97,81 @@ fn the_merge_holds_a_few_chunks_not_the_file() {
     }
     assert_eq!(n, 600);
     assert!(held > 300, "held {held}");
+}
+
+/// An MCAP record: opcode, little-endian length, body.
+fn record(opcode: u8, body: &[u8]) -> Vec<u8> {
+    let mut r = vec![opcode];
+    r.extend_from_slice(&(body.len() as u64).to_le_bytes());
+    r.extend_from_slice(body);
+    r
+}
+
+/// An MCAP string: u32 length, bytes.
+fn string(s: &str) -> Vec<u8> {
+    let mut b = (s.len() as u32).to_le_bytes().to_vec();
+    b.extend_from_slice(s.as_bytes());
+    b
+}
+
+/// Channel `id` on `topic` (schema 1, cdr, no metadata).
+fn channel(id: u16, topic: &str) -> Vec<u8> {
+    let mut b = id.to_le_bytes().to_vec();
+    b.extend_from_slice(&1u16.to_le_bytes());
+    b.extend(string(topic));
+    b.extend(string("cdr"));
+    b.extend_from_slice(&0u32.to_le_bytes());
+    record(0x04, &b)
+}
+
+/// A message on channel `id` at `log_time`.
+fn message(id: u16, log_time: u64, data: &[u8]) -> Vec<u8> {
+    let mut b = id.to_le_bytes().to_vec();
+    b.extend_from_slice(&0u32.to_le_bytes());
+    b.extend_from_slice(&log_time.to_le_bytes());
+    b.extend_from_slice(&log_time.to_le_bytes());
+    b.extend_from_slice(data);
+    record(0x05, &b)
+}
+
+/// A channel declared again on another topic, after messages on it, would be indexed on one
+/// side of the declaration and not on the other: a reader for the roles refuses it, naming
+/// the channel and both topics (the merge reads the final declaration). Declared again on the
+/// same topic, or read with every channel indexed, it reads as before.
+#[test]
+fn a_channel_declared_again_on_another_topic_is_refused_for_the_roles() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = |name: &str, second_topic: &str| {
+        let mut b = MCAP_MAGIC.to_vec();
+        b.extend(record(0x01, &[string("ros2"), string("test")].concat()));
+        let mut schema = 1u16.to_le_bytes().to_vec();
+        schema.extend(string(TwistStamped::TYPE));
+        schema.extend(string("ros2msg"));
+        schema.extend_from_slice(&0u32.to_le_bytes());
+        b.extend(record(0x03, &schema));
+        b.extend(channel(1, "/other"));
+        b.extend(message(1, 1_000, &twist_cdr(1_000, 0.5)));
+        b.extend(channel(1, second_topic));
+        b.extend(message(1, 2_000, &twist_cdr(2_000, 0.25)));
+        b.extend(record(0x0F, &0u32.to_le_bytes()));
+        b.extend(record(0x02, &[0u8; 20]));
+        b.extend_from_slice(MCAP_MAGIC);
+        let path = dir.path().join(name);
+        std::fs::write(&path, b).unwrap();
+        path
+    };
+    let open = |p: &Path, scope| SessionReader::open_scoped(p, Topics::default(), scope);
+    let flip = file("flip.mcap", "/cmd_vel");
+    let e = open(&flip, IndexScope::Roles).unwrap_err().to_string();
+    assert!(
+        e.contains("topic /cmd_vel")
+            && e.contains("channel 1 is declared again on another topic (/other before)"),
+        "{e}"
+    );
+    let all = open(&flip, IndexScope::All).unwrap();
+    assert_eq!(all.collect_index().unwrap().len(), 2);
+    let same = file("same.mcap", "/other");
+    let roles = open(&same, IndexScope::Roles).unwrap();
+    assert_eq!(roles.collect_index().unwrap().len(), 0);
+    assert_eq!(open(&same, IndexScope::All).unwrap().message_count(), 2);
 }
