@@ -10,9 +10,7 @@ fn jittered(n: u64, spread_ns: u64, seed: u64) -> Written {
     let mut state = seed.wrapping_mul(0x9e37_79b9_7f4a_7c15) | 1;
     (0..n)
         .map(|k| {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
+            let state = xorshift(&mut state);
             // Rounded to 4 ms, so that several messages (across channels, chunks and equal
             // sequence numbers) share a log time and the later keys decide.
             let t =
@@ -57,6 +55,19 @@ fn the_merge_is_the_sort_of_every_message_however_chunks_overlap() {
 
 /// The merge holds the messages of the chunks that overlap the current time, not the file's:
 /// on chunks that follow each other in time, never more than two chunks' worth.
+/// The most messages the merge held at once over `reader` (the one handed out included),
+/// and how many it handed out.
+fn most_held(reader: &SessionReader) -> (usize, usize) {
+    let mut ordered = reader.ordered();
+    let (mut held, mut n) = (0, 0);
+    while let Some(m) = ordered.next() {
+        m.unwrap();
+        held = held.max(ordered.pending() + 1);
+        n += 1;
+    }
+    (held, n)
+}
+
 #[test]
 fn the_merge_holds_a_few_chunks_not_the_file() {
     let dir = tempfile::tempdir().unwrap();
@@ -70,13 +81,7 @@ fn the_merge_holds_a_few_chunks_not_the_file() {
         reader.chunk_count()
     );
     let most_in_a_chunk = reader.openings.iter().map(|o| o.indexed).max().unwrap() as usize;
-    let mut ordered = reader.ordered();
-    let (mut held, mut n) = (0, 0);
-    while let Some(m) = ordered.next() {
-        m.unwrap();
-        held = held.max(ordered.pending() + 1);
-        n += 1;
-    }
+    let (held, n) = most_held(&reader);
     assert_eq!(n, 3000);
     assert!(
         held <= 2 * most_in_a_chunk,
@@ -88,13 +93,7 @@ fn the_merge_holds_a_few_chunks_not_the_file() {
     let wide = dir.path().join("wide.mcap");
     write(&wide, small_chunks(), &spread);
     let reader = SessionReader::open(&wide, Topics::default()).unwrap();
-    let mut ordered = reader.ordered();
-    let (mut held, mut n) = (0, 0);
-    while let Some(m) = ordered.next() {
-        m.unwrap();
-        held = held.max(ordered.pending() + 1);
-        n += 1;
-    }
+    let (held, n) = most_held(&reader);
     assert_eq!(n, 600);
     assert!(held > 300, "held {held}");
 }

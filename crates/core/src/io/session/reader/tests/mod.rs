@@ -51,16 +51,19 @@ fn write(path: &Path, opts: mcap::WriteOptions, msgs: &Written) -> Vec<u8> {
     std::fs::read(path).unwrap()
 }
 
+/// The next state of a xorshift64 generator (never 0 from a non-zero state).
+fn xorshift(state: &mut u64) -> u64 {
+    *state ^= *state << 13;
+    *state ^= *state >> 7;
+    *state ^= *state << 17;
+    *state
+}
+
 /// Pseudo-random bytes from `seed` (zstd cannot shrink them much, so chunks fill).
 fn noise(seed: u64, len: usize) -> Vec<u8> {
     let mut state = seed.wrapping_mul(0x9e37_79b9_7f4a_7c15) | 1;
     (0..len)
-        .map(|_| {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state >> 24) as u8
-        })
+        .map(|_| (xorshift(&mut state) >> 24) as u8)
         .collect()
 }
 
