@@ -320,7 +320,7 @@ fn scan(reader: &SessionReader) -> Result<Scan, SessionError> {
 pub const DECODE_BATCH: usize = 64;
 
 /// Fails on the first frame, in replay order, whose image does not decode; `frames` are
-/// indexes into [`SessionReader::index`].
+/// the frames' messages in the reader.
 fn check_frames_decode(reader: &SessionReader, frames: &[MessageMeta]) -> Result<(), SessionError> {
     // Every frame must decode: one corrupt PNG would otherwise surface only deep inside train
     // or fuse. Batches run in order and each keeps its results in order, so the first failure

@@ -116,7 +116,7 @@ pub fn load_session(
     let sha256 = file_sha256(path)?;
     let reader = SessionReader::open_scoped(path, topics, IndexScope::Roles)?;
     reader.require_frames()?;
-    // Frames are kept as indexes into the reader and decoded once selected: the encoded
+    // Frames are kept as their messages' places in the reader and decoded once selected: the encoded
     // frames of a long session are never all in memory at once.
     let mut frames: Vec<(MessageMeta, u64, String, i64)> = Vec::new();
     let mut labels: BTreeMap<i64, Vec<RegionOfInterest>> = BTreeMap::new();
@@ -148,16 +148,16 @@ pub fn load_session(
     }
     let selected: Vec<_> = frames
         .into_iter()
-        .filter_map(|(i, t, topic, stamp_ns)| {
+        .filter_map(|(meta, t, topic, stamp_ns)| {
             let regions = labels.get(&stamp_ns).cloned();
-            (!labelled_only || regions.is_some()).then_some((i, t, topic, stamp_ns, regions))
+            (!labelled_only || regions.is_some()).then_some((meta, t, topic, stamp_ns, regions))
         })
         .collect();
     // Decoding dominates loading; rayon's collect keeps session order.
     let frames = selected
         .into_par_iter()
-        .map(|(i, log_time_ns, topic, stamp_ns, regions)| {
-            let frame = match reader.decode(&i)?.map(|m| m.msg) {
+        .map(|(meta, log_time_ns, topic, stamp_ns, regions)| {
+            let frame = match reader.decode(&meta)?.map(|m| m.msg) {
                 Some(SessionMsg::Frame(f)) => f,
                 _ => {
                     return Err(SessionError::Invalid {

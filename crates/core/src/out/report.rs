@@ -268,13 +268,8 @@ impl Report {
         Ok(())
     }
 
-    /// The report as pretty-printed JSON (empty if it does not serialize).
-    pub fn to_json(&self) -> String {
-        serde_json::to_string_pretty(self).unwrap_or_default()
-    }
-
-    /// Writes the report as pretty-printed JSON (the bytes of [`Report::to_json`]) to `w`,
-    /// without holding the text: a 5 000-frame report is 6.6 MB of it.
+    /// Writes the report as pretty-printed JSON to `w`, without holding the text (a
+    /// 5 000-frame report is 6.6 MB of it); an error if it does not serialize.
     pub fn write_json(&self, w: &mut dyn std::io::Write) -> std::io::Result<()> {
         serde_json::to_writer_pretty(w, self).map_err(std::io::Error::from)
     }

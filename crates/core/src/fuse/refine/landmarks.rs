@@ -144,35 +144,19 @@ fn ray_distance(s: &Sighting, p: &Vector3<f64>) -> f64 {
 }
 
 /// Of `sightings` (in frame order), the one passing closest to `c` per frame, within `gate_m`,
-/// with its distance.
+/// with its distance (ties to the first ray of a frame).
 fn closest_per_frame<'a>(
     c: &Vector3<f64>,
     sightings: &'a [Sighting],
     gate_m: f64,
 ) -> Vec<(f64, &'a Sighting)> {
-    let mut chosen: Vec<(f64, &Sighting)> = Vec::new();
-    for s in sightings {
-        let d = ray_distance(s, c);
-        // A NaN distance (a degenerate ray) is left out too.
-        if d.is_nan() || d > gate_m {
-            continue;
-        }
-        match chosen.last_mut() {
-            Some(last) if last.1.frame == s.frame => {
-                if d < last.0 {
-                    *last = (d, s);
-                }
-            }
-            _ => chosen.push((d, s)),
-        }
-    }
-    chosen
+    closest_per_recent_frame(c, sightings, gate_m, usize::MAX)
 }
 
 /// Of `sightings` (in frame order), the one passing closest to `c` per frame within `gate_m`,
-/// for the last `max_frames` frames that have one, in frame order: exactly the tail of
-/// [`closest_per_frame`]'s result (ties to the first, as there), found by scanning back from
-/// the newest ray, so that its cost does not grow with the frames before them.
+/// for the last `max_frames` frames that have one, in frame order (ties to the first ray of a
+/// frame), found by scanning back from the newest ray, so that its cost does not grow with
+/// the frames before them.
 fn closest_per_recent_frame<'a>(
     c: &Vector3<f64>,
     sightings: &'a [Sighting],
@@ -452,6 +436,32 @@ pub(super) fn associate(
 mod tests {
     use super::*;
 
+    /// The forward scan `closest_per_frame` was before the backward one: per frame the
+    /// closest ray within `gate_m`, ties to the first.
+    fn forward_scan<'a>(
+        c: &Vector3<f64>,
+        sightings: &'a [Sighting],
+        gate_m: f64,
+    ) -> Vec<(f64, &'a Sighting)> {
+        let mut chosen: Vec<(f64, &Sighting)> = Vec::new();
+        for s in sightings {
+            let d = ray_distance(s, c);
+            // A NaN distance (a degenerate ray) is left out too.
+            if d.is_nan() || d > gate_m {
+                continue;
+            }
+            match chosen.last_mut() {
+                Some(last) if last.1.frame == s.frame => {
+                    if d < last.0 {
+                        *last = (d, s);
+                    }
+                }
+                _ => chosen.push((d, s)),
+            }
+        }
+        chosen
+    }
+
     /// Scanning back from the newest ray chooses what the forward scan chooses, ties and
     /// all, cut to the last frames: rays of 30 frames towards points about a centre, two or
     /// three a frame (some equally close, some outside the gate, some frames without one).
@@ -476,7 +486,7 @@ mod tests {
                 });
             }
         }
-        let all = closest_per_frame(&c, &rays, GATE_M);
+        let all = forward_scan(&c, &rays, GATE_M);
         assert_eq!(
             all.len(),
             22,

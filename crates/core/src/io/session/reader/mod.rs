@@ -398,7 +398,7 @@ impl SessionReader {
         self.chunk_count
     }
 
-    /// Where the payload of `meta` (a message of this reader's index) is in the file.
+    /// Where the payload of `meta` (a message this reader handed out) is in the file.
     pub fn payload_at(&self, meta: &MessageMeta) -> Option<PayloadAt> {
         Some(match *self.segments.get(meta.segment())? {
             Segment::Chunk(span) => PayloadAt::Chunk {
