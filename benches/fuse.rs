@@ -148,6 +148,7 @@ fn camera_resolution() {
     use objloc_core::fuse::replay::{FuseOptions, replay};
     use objloc_core::io::session::{SessionReader, Topics};
     use objloc_core::learn::dataset::load_session;
+    use objloc_core::learn::defaults::TileHeadDefaults;
     use objloc_core::learn::model::{TrainConfig, examples, fit_model};
     use objloc_core::sim::{Kind, SimOptions, builtin_scene, record};
     let dir = std::env::temp_dir().join(format!("objloc-bench-res-{}", std::process::id()));
@@ -173,24 +174,35 @@ fn camera_resolution() {
             &mut |_, _| {},
         )
         .unwrap();
-        let cfg = TrainConfig::default();
-        let mut model = None;
-        // Loading, features and both heads, as `objloc train` does them.
-        let train_ms = median_ms(3, || {
-            let mut one = load_session(&train, Topics::default(), None, true).unwrap();
-            // The three labelled views alone, as a capture with rectangles in three frames.
-            one.frames
-                .retain(|f| f.regions.as_ref().is_some_and(|r| !r.is_empty()));
-            let s = [one];
-            let set = examples(&s, &cfg).unwrap();
-            let mut m = fit_model(&s, &set, &cfg).unwrap();
-            if let Some(rc) = cfg.region_config() {
-                let rs = examples(&s, &rc).unwrap();
-                m.region = Some(Box::new(fit_model(&s, &rs, &rc).unwrap()));
-            }
-            model = Some(m);
-        });
-        let model = model.unwrap();
+        // Loading, features and both heads, as `objloc train` does them: with a ground
+        // robot's defaults and with a posed capture's (rgb332+hs on light variants).
+        let train_with = |cfg: &TrainConfig| {
+            let mut model = None;
+            let ms = median_ms(3, || {
+                let mut one = load_session(&train, Topics::default(), None, true).unwrap();
+                // The three labelled views alone, as a capture with rectangles in three frames.
+                one.frames
+                    .retain(|f| f.regions.as_ref().is_some_and(|r| !r.is_empty()));
+                let s = [one];
+                let set = examples(&s, cfg).unwrap();
+                let mut m = fit_model(&s, &set, cfg).unwrap();
+                if let Some(rc) = cfg.region_config() {
+                    let rs = examples(&s, &rc).unwrap();
+                    m.region = Some(Box::new(fit_model(&s, &rs, &rc).unwrap()));
+                }
+                model = Some(m);
+            });
+            (ms, model.unwrap())
+        };
+        let robot_cfg = TrainConfig::default();
+        let d = TileHeadDefaults::for_sessions(&[0], robot_cfg.train_stride_px, robot_cfg.tile_px);
+        let capture_cfg = TrainConfig {
+            features: d.features,
+            augment: d.augment,
+            ..robot_cfg.clone()
+        };
+        let (train_ms, model) = train_with(&robot_cfg);
+        let (capture_train_ms, capture_model) = train_with(&capture_cfg);
         let reader = SessionReader::open(&tour, Topics::default()).unwrap();
         let frames = reader.count(&Topics::default().compressed_image) as f64;
         let options = FuseOptions::default();
@@ -204,8 +216,16 @@ fn camera_resolution() {
         let plain = median_ms(3, || {
             black_box(replay(&reader, &model, &paper, &mut []).unwrap());
         }) / frames;
+        let capture = median_ms(3, || {
+            black_box(replay(&reader, &capture_model, &options, &mut []).unwrap());
+        }) / frames;
         println!(
             "{w} x {h} camera: training on its 3 labelled views (both heads) {train_ms:.0} ms; a frame classified and fused {refined:.1} ms (default), {plain:.1} ms (--no-refine-poses)"
+        );
+        println!(
+            "{w} x {h} camera, a posed capture's training defaults ({} features, augment {}): training {capture_train_ms:.0} ms; a frame classified and fused {capture:.1} ms (default)",
+            capture_cfg.features,
+            capture_cfg.augment.name()
         );
         per_frame.push(refined);
     }

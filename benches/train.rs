@@ -82,6 +82,7 @@ fn synthetic() -> LoadedSession {
         sha256: String::new(),
         frames,
         label_objects: ["object".to_owned()].into(),
+        commands: 0,
     }
 }
 

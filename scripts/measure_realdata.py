@@ -11,7 +11,8 @@ size, inside the rectangle in >= 95 % of the frames, tile AUC >= 0.93.
 
 Usage: scripts/measure_realdata.py [--markdown OUT.md] [-- extra fuse flags...]
        (from the repository root; stdlib only; calls target/release/objloc)
-Skips with a message when ../shared/realdata is absent (REALDATA_DIR overrides it).
+Skips with a message when ../shared/realdata is absent (REALDATA_DIR overrides it; its
+sessions then go to target/measure-realdata-<its directory name>).
 TRAIN_FLAGS in the environment are passed to `objloc train`; `--tag T` names the models and
 reports `OBJECT-T.json` so that several settings can be measured side by side.
 
@@ -30,8 +31,11 @@ import sys
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 BIN = os.path.join(ROOT, "target", "release", "objloc")
-OUT = os.path.join(ROOT, "target", "measure-realdata")
 DATA = os.environ.get("REALDATA_DIR", os.path.join(ROOT, "..", "shared", "realdata"))
+# Sessions are built once per output directory and reused, so another REALDATA_DIR gets its
+# own (a perturbed copy measured into the unperturbed sessions would measure those).
+OUT = os.path.join(ROOT, "target", "measure-realdata" + (
+    "-" + os.path.basename(os.path.normpath(DATA)) if "REALDATA_DIR" in os.environ else ""))
 LABELS = os.path.join(ROOT, "recordings", "realdata")
 
 # capture -> (import flags, default object name, objects to model)

@@ -6,6 +6,7 @@ use std::time::Instant;
 
 use anyhow::Context;
 use objloc_core::learn::dataset::{Augment, LoadedSession, export_features, load_session};
+use objloc_core::learn::defaults::TileHeadDefaults;
 use objloc_core::learn::features::FeatureSpec;
 use objloc_core::learn::model::{Model, RegionConfig, TrainConfig, examples, fit_model};
 use objloc_core::learn::tree::TreeParams;
@@ -25,11 +26,12 @@ pub struct Args {
     quiet: bool,
     /// The tile head's channels, joined by '+': colour rgb332 | hsv | hs (hue and saturation
     /// without brightness), texture (brighter / darker neighbour counts), grad (gradient
-    /// magnitude and orientation); e.g. rgb332+texture (docs/tree.md). rgb332 is the
-    /// default: on the shipped tours its maps fuse into tighter objects than hsv's
-    /// (docs/fuser.md), though hsv scores a slightly higher tile AUC.
-    #[arg(long, default_value = "rgb332", value_name = "SPEC")]
-    features: FeatureSpec,
+    /// magnitude and orientation); e.g. rgb332+texture (docs/tree.md). Default: rgb332 when
+    /// every session has /cmd_vel (a ground robot's: on those its maps fuse into the tightest
+    /// objects), rgb332+hs otherwise (a posed capture, whose exposure and white balance
+    /// change between frames); the choice is printed.
+    #[arg(long, value_name = "SPEC")]
+    features: Option<FeatureSpec>,
     /// Seed of the split into training, test and pruning thirds.
     #[arg(long, default_value_t = 0)]
     seed: u64,
@@ -41,9 +43,10 @@ pub struct Args {
     #[arg(long = "train-stride", default_value_t = 4)]
     train_stride_px: u32,
     /// Photometric variants of the frames the shifted training grids are cut from: none, or
-    /// light (darker, brighter, warmer, cooler; docs/tree.md).
-    #[arg(long, value_enum, default_value = "none")]
-    augment: Augment,
+    /// light (darker, brighter, warmer, cooler; docs/tree.md). Default: none when every
+    /// session has /cmd_vel, light otherwise (with shifted grids); the choice is printed.
+    #[arg(long, value_enum)]
+    augment: Option<Augment>,
     /// Use only labels naming this object (default: every label).
     #[arg(long)]
     object: Option<String>,
@@ -87,14 +90,15 @@ pub struct Args {
     rerun: crate::viz::VizArgs,
 }
 
-/// The training configuration the options ask for, checked before any work.
+/// The training configuration the options ask for, checked before any work; the tile head's
+/// channels are rgb332 until the sessions choose them ([`choose_features`]).
 fn config(args: &Args) -> anyhow::Result<TrainConfig> {
     let cfg = TrainConfig {
-        features: args.features,
+        features: args.features.unwrap_or(FeatureSpec::RGB332),
         tile_px: args.tile_px,
         context_tiles: args.context_tiles,
         train_stride_px: args.train_stride_px,
-        augment: args.augment,
+        augment: args.augment.unwrap_or(Augment::None),
         seed: args.seed,
         object: args.object.clone(),
         tree: TreeParams {
@@ -185,9 +189,42 @@ fn log_to_rerun(args: &Args, model: &Model, sessions: &[LoadedSession]) -> anyho
     Ok(())
 }
 
+/// Sets what `--features` and `--augment` left open to the sessions' defaults
+/// ([`TileHeadDefaults`]); the line that says so, None when both were given.
+fn fit_to_sessions(
+    args: &Args,
+    cfg: &mut TrainConfig,
+    sessions: &[LoadedSession],
+) -> Option<String> {
+    if args.features.is_some() && args.augment.is_some() {
+        return None;
+    }
+    let commands: Vec<usize> = sessions.iter().map(|s| s.commands).collect();
+    let d = TileHeadDefaults::for_sessions(&commands, cfg.train_stride_px, cfg.tile_px);
+    let mut chosen = Vec::new();
+    if args.features.is_none() {
+        cfg.features = d.features;
+        chosen.push(format!("features {}", d.features));
+    }
+    if args.augment.is_none() {
+        cfg.augment = d.augment;
+        chosen.push(format!("augment {}", d.augment.name()));
+    }
+    let why = if d.capture {
+        "a training session has no /cmd_vel: a posed capture, whose exposure and white balance \
+         change between frames"
+    } else {
+        "every training session has /cmd_vel: a ground robot's"
+    };
+    Some(format!(
+        "{} ({why}; --features and --augment set them)",
+        chosen.join(", ")
+    ))
+}
+
 pub fn run(args: Args) -> anyhow::Result<()> {
     let topics = args.topics.topics()?;
-    let cfg = config(&args)?;
+    let mut cfg = config(&args)?;
     let stage = super::progress::stage_spinner(args.quiet);
     stage.set_message("train: reading sessions");
     let t0 = Instant::now();
@@ -214,6 +251,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             super::names_or_none(&names)
         );
     }
+    let chosen = fit_to_sessions(&args, &mut cfg, &sessions);
     let t_load = t0.elapsed();
     let t1 = Instant::now();
     stage.set_message("train: tile features");
@@ -254,6 +292,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .context("train: writing the model")?;
     if let Some(dir) = &args.export_features {
         export_features(&set, dir).context("train: exporting features")?;
+    }
+    if let Some(line) = &chosen {
+        println!("{line}");
     }
     print!("{}", model.summary_table());
     log_to_rerun(&args, &model, &sessions)?;

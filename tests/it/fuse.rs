@@ -365,10 +365,16 @@ fn shipped_tours_meet_the_accuracy_target() {
     ] {
         let model = dir.path().join(format!("{object}.json"));
         let train_session = format!("recordings/{object}-train.mcap");
-        ok(&objloc(
+        let out = ok(&objloc(
             &["train", &train_session, "-o", p(&model), "--no-rerun"],
             &[],
         ));
+        // A robot's training session (it has /cmd_vel) keeps the paper's channels.
+        assert!(
+            out.contains("features rgb332, augment none (every training session has /cmd_vel"),
+            "{out}"
+        );
+        assert_eq!(json(&model)["features"], "rgb332");
         for tour in tours {
             let session = format!("recordings/{tour}.mcap");
             let rep = dir.path().join(format!("{tour}.json"));

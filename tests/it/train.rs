@@ -177,7 +177,14 @@ fn train_then_predict_finds_the_box() {
     assert_eq!(m["region"]["metadata"]["train_stride_px"], 2);
     assert!(m["region"].get("region").is_none());
     assert!(text.contains("region head"), "{text}");
-    assert_eq!(m["features"], "rgb332");
+    // The session has no /cmd_vel, as a posed capture: the capture's channels and light
+    // variants, said on stdout.
+    assert!(
+        text.contains("features rgb332+hs, augment light (a training session has no /cmd_vel"),
+        "{text}"
+    );
+    assert_eq!(m["features"], "rgb332+hs");
+    assert_eq!(m["metadata"]["augment"], "light");
     assert_eq!(m["tile_px"], 8);
     let meta = &m["metadata"];
     // 18 labelled frames x 30 rows x 32 cols = 17280 aligned tiles, in thirds of 5760.
@@ -195,14 +202,14 @@ fn train_then_predict_finds_the_box() {
     let base = m["base_rate"].as_f64().unwrap();
     assert!(base > 0.005 && base < 0.05, "base rate {base}");
 
-    // Exported examples: every example, 256 float32 features each.
+    // Exported examples: every example, 256 rgb332 + 74 hs float32 features each.
     let n_examples = 5760 * 3 + 49626;
     let (hx, bytes) = read_npy_header(&feats.join("X.npy"));
     assert!(
-        hx.contains(&format!("'shape': ({n_examples}, 256)")),
+        hx.contains(&format!("'shape': ({n_examples}, 330)")),
         "{hx}"
     );
-    assert_eq!(bytes, n_examples * 256 * 4);
+    assert_eq!(bytes, n_examples * 330 * 4);
     let (hs, _) = read_npy_header(&feats.join("split.npy"));
     assert!(hs.contains("'|u1'"), "{hs}");
 
@@ -376,9 +383,13 @@ fn bad_inputs_fail_with_one_line_and_no_output() {
         "{line}"
     );
 
-    // Models of another version or feature spec are refused, naming the file.
+    // Models of another version or feature spec are refused, naming the file (the paper's
+    // channels, which the edits below name).
     let train = train_session(dir.path());
-    ok(&objloc(&["train", p(&train), "-o", p(&model)], &[]));
+    ok(&objloc(
+        &["train", p(&train), "-o", p(&model), "--features", "rgb332"],
+        &[],
+    ));
     let text = std::fs::read_to_string(&model).unwrap();
     for (name, from, to, expect) in [
         (

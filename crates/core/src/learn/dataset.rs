@@ -103,6 +103,9 @@ pub struct LoadedSession {
     /// Every object a label with a rectangle names, whichever `object` was asked for: what
     /// to tell a user whose `--object` names none of them.
     pub label_objects: std::collections::BTreeSet<String>,
+    /// Messages on the command topic (/cmd_vel): a ground robot's session has them, a posed
+    /// capture (phone, arm, structure from motion) has none.
+    pub commands: usize,
 }
 
 /// Reads a session's frames and labels. `object`: use only labels naming it (None: all).
@@ -121,6 +124,7 @@ pub fn load_session(
     let mut frames: Vec<(MessageMeta, u64, String, i64)> = Vec::new();
     let mut labels: BTreeMap<i64, Vec<RegionOfInterest>> = BTreeMap::new();
     let mut label_objects = std::collections::BTreeSet::new();
+    let mut commands = 0;
     for meta in reader.ordered() {
         let meta = meta?;
         let Some(m) = reader.decode(&meta)? else {
@@ -133,6 +137,7 @@ pub fn load_session(
         }
         match m.msg {
             SessionMsg::Frame(f) => frames.push((meta, m.log_time_ns, m.topic, f.stamp_ns)),
+            SessionMsg::CmdVel(_) => commands += 1,
             // Several labels for one frame (several objects, or a background label next to
             // an object label) add up their rectangles.
             SessionMsg::Label(l)
@@ -184,6 +189,7 @@ pub fn load_session(
         sha256,
         frames,
         label_objects,
+        commands,
     })
 }
 
@@ -258,6 +264,16 @@ pub enum Augment {
     /// brighter, warmer, cooler or as recorded, cycling over frames and grids), so the tree
     /// sees the object under more exposures and white balances than three frames hold.
     Light,
+}
+
+impl Augment {
+    /// The name `train --augment` and the model file use.
+    pub fn name(self) -> &'static str {
+        match self {
+            Augment::None => "none",
+            Augment::Light => "light",
+        }
+    }
 }
 
 /// Per-channel gains (r, g, b) in 1/256 of the light variants: as recorded, 0.75 (darker),

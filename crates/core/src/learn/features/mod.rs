@@ -122,6 +122,9 @@ impl FeatureSpec {
     pub const RGB332: FeatureSpec = FeatureSpec { mask: 1 };
     /// The hsv colour histogram alone.
     pub const HSV: FeatureSpec = FeatureSpec { mask: 2 };
+    /// rgb332 with the brightness-free hue-saturation histogram beside it: the default for
+    /// posed captures (`learn::defaults::TileHeadDefaults`).
+    pub const RGB332_HS: FeatureSpec = FeatureSpec { mask: 1 | 4 };
 
     /// The spec of exactly these channels (None when `channels` is empty).
     pub fn of(channels: &[Channel]) -> Option<FeatureSpec> {
