@@ -37,16 +37,17 @@ type Schemas = BTreeMap<u16, (String, String, Vec<u8>)>;
 #[derive(Default)]
 struct Tally {
     start_ns: Option<u64>,
+    start_channel: u16,
     count: u32,
     stats: BTreeMap<u16, ChannelStats>,
 }
 
 impl Tally {
     fn add(&mut self, meta: &MessageMeta) {
-        self.start_ns = Some(
-            self.start_ns
-                .map_or(meta.log_time_ns, |t| t.min(meta.log_time_ns)),
-        );
+        if self.start_ns.is_none_or(|t| meta.log_time_ns < t) {
+            self.start_ns = Some(meta.log_time_ns);
+            self.start_channel = meta.channel_id;
+        }
         self.count += 1;
         let one = ChannelStats::one(meta.log_time_ns);
         self.stats
@@ -336,6 +337,7 @@ impl SessionReader {
             // `next_segment` checked that the number fits in 32 bits.
             segment: (segment_loc >> 32) as u32,
             indexed: tally.count,
+            start_channel: tally.start_channel,
         });
     }
 

@@ -8,7 +8,7 @@
 //! range, the first log time and the count of its indexed messages (the fields of the MCAP
 //! summary's ChunkIndex records, built by the scan so that a file without a summary reads
 //! alike), and per channel its count and first and last log time. Memory then grows with the
-//! number of chunks (about 40 bytes per chunk of 256 KiB in objloc's sessions), not with the
+//! number of chunks (about 48 bytes per chunk of 256 KiB in objloc's sessions), not with the
 //! messages. [`SessionReader::ordered`] merges the chunks in order, opening a chunk only when
 //! the merge reaches its first log time, so it holds the messages of the chunks that overlap
 //! in time (one or two in a recorder's file) and a small cache of decompressed chunks that
@@ -134,7 +134,7 @@ enum Segment {
 }
 
 /// A segment the ordered merge opens: a chunk with indexed messages, or one unchunked
-/// indexed message: 16 bytes, with its [`Segment`] (24) what the reader keeps per chunk.
+/// indexed message: 24 bytes, with its [`Segment`] (24) what the reader keeps per chunk.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 struct Opening {
     /// The least log time of the segment's indexed messages: the merge opens the segment
@@ -144,6 +144,9 @@ struct Opening {
     segment: u32,
     /// How many of its messages are indexed (checked when the chunk is read again).
     indexed: u32,
+    /// The channel of the message at `start_ns` (the first in the file among equals): the
+    /// topic an error met when the segment is read again names.
+    start_channel: u16,
 }
 
 /// A channel's indexed messages: their count and least and greatest log time.

@@ -9,7 +9,7 @@
 //! overlap the current time, 32 bytes each; a file whose chunks all span the whole session
 //! (one chunk per topic, say) makes that every message, as a full index would. A chunk read
 //! again must hold as many indexed messages as the scan counted, or the merge stops with an
-//! error naming the file.
+//! error naming the file and the topic and log time of the segment's first message.
 
 use std::cmp::{Ordering, Reverse};
 use std::collections::BinaryHeap;
@@ -102,7 +102,7 @@ impl Ordered<'_> {
         let r = self.reader;
         let at = || At {
             path: r.path.clone(),
-            topic: None,
+            topic: r.channels.get(&o.start_channel).map(|c| c.topic.clone()),
             log_time_ns: Some(o.start_ns),
         };
         let segment_loc = u64::from(o.segment) << 32;

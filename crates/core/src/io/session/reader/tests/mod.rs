@@ -415,16 +415,19 @@ fn a_chunk_damaged_after_indexing_is_an_error_naming_file_topic_and_log_time() {
     // Chunks left alone still read.
     let first = index[0];
     assert_eq!(reader.payload(&first).unwrap(), old_order(&bytes)[0].4);
-    // The merge reads chunk 2 again on its way: an error naming the file and the chunk, once,
-    // after the messages before it.
+    // The merge reads chunk 2 again on its way: an error naming the file, the topic and log
+    // time of the chunk's first message, and the chunk, once, after the messages before it.
     let mut ordered = reader.ordered();
     let before = ordered.by_ref().take_while(Result::is_ok).count();
     assert!(before > 0 && before < index.len(), "{before}");
     assert!(ordered.next().is_none());
     let e = reader.ordered().find_map(Result::err).unwrap().to_string();
     assert!(
-        e.starts_with(&format!("{} at log time ", path.display()))
-            && e.contains(&format!("the chunk at byte {}", c.chunk_start_offset)),
+        e.starts_with(&format!(
+            "{}: topic {topic} at log time {}: ",
+            path.display(),
+            crate::io::session::fmt_ns(c.message_start_time)
+        )) && e.contains(&format!("the chunk at byte {}", c.chunk_start_offset)),
         "{e}"
     );
 }
