@@ -13,7 +13,8 @@ Usage: scripts/measure_realdata.py [--markdown OUT.md] [-- extra fuse flags...]
        (from the repository root; stdlib only; calls target/release/objloc)
 Skips with a message when ../shared/realdata is absent (REALDATA_DIR overrides it; its
 sessions then go to target/measure-realdata-<its directory name>).
-TRAIN_FLAGS in the environment are passed to `objloc train`; `--tag T` names the models and
+TRAIN_FLAGS in the environment are passed to `objloc train`; OBJLOC_BIN names the binary
+(default target/release/objloc); `--tag T` names the models and
 reports `OBJECT-T.json` so that several settings can be measured side by side.
 
 `--train-triples N [--seed S]`: how much the result depends on which three frames were
@@ -30,7 +31,9 @@ import subprocess
 import sys
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-BIN = os.path.join(ROOT, "target", "release", "objloc")
+# OBJLOC_BIN: measure another build (a copy, so that rebuilding this tree cannot change it
+# halfway through a run).
+BIN = os.environ.get("OBJLOC_BIN") or os.path.join(ROOT, "target", "release", "objloc")
 DATA = os.environ.get("REALDATA_DIR", os.path.join(ROOT, "..", "shared", "realdata"))
 # Sessions are built once per output directory and reused, so another REALDATA_DIR gets its
 # own (a perturbed copy measured into the unperturbed sessions would measure those).

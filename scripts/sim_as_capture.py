@@ -1,0 +1,131 @@
+#!/usr/bin/env python3
+"""Writes a simulated session as a posed capture comes: its frames as image files, the
+camera's true poses as a TUM trajectory (camera in world, OpenCV axes: /ground_truth/pose at
+each frame's stamp composed with the /tf_static mount), its intrinsics, its label rectangles
+as a labels CSV, and the objects' true centres (per name, a list: the volume-weighted
+centroid of each group of touching boxes, as `objloc eval` scores it). `objloc record import --trajectory` then makes a session
+without /cmd_vel of it: the path a real capture takes (issue #18), on a scene whose truth is
+known (docs/realdata.md, "A simulated capture").
+
+Usage: target/pyenv/bin/python scripts/sim_as_capture.py SESSION.mcap OUT_DIR
+Writes OUT_DIR/images/<stamp>.png, trajectory.txt, labels.csv, camera.txt (FX,FY,CX,CY) and
+truth.json. Needs mcap and mcap-ros2-support (the test environment's target/pyenv has them).
+"""
+import json
+import os
+import sys
+
+import numpy as np
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+
+
+def quat_to_rot(q):
+    x, y, z, w = q
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+    ])
+
+
+def rot_to_quat(r):
+    # Shepperd's method, w kept non-negative.
+    t = np.trace(r)
+    if t > 0:
+        s = np.sqrt(t + 1.0) * 2
+        q = [(r[2, 1] - r[1, 2]) / s, (r[0, 2] - r[2, 0]) / s, (r[1, 0] - r[0, 1]) / s, 0.25 * s]
+    else:
+        i = int(np.argmax(np.diag(r)))
+        j, k = (i + 1) % 3, (i + 2) % 3
+        s = np.sqrt(1.0 + r[i, i] - r[j, j] - r[k, k]) * 2
+        q = [0.0] * 4
+        q[i] = 0.25 * s
+        q[j] = (r[j, i] + r[i, j]) / s
+        q[k] = (r[k, i] + r[i, k]) / s
+        q[3] = (r[k, j] - r[j, k]) / s
+    q = np.array(q)
+    return q if q[3] >= 0 else -q
+
+
+def pose(p, o):
+    m = np.eye(4)
+    m[:3, :3] = quat_to_rot([o.x, o.y, o.z, o.w])
+    m[:3, 3] = [p.x, p.y, p.z]
+    return m
+
+
+def stamp_ns(h):
+    return h.stamp.sec * 1_000_000_000 + h.stamp.nanosec
+
+
+def main():
+    session, out = sys.argv[1], sys.argv[2]
+    os.makedirs(os.path.join(out, "images"), exist_ok=True)
+    frames, labels, gt_pose, mount, k, truth = [], {}, {}, None, None, None
+    with open(session, "rb") as f:
+        for _, channel, _, msg in make_reader(f, decoder_factories=[DecoderFactory()]).iter_decoded_messages():
+            t = channel.topic
+            if t == "/camera/image/compressed":
+                frames.append((stamp_ns(msg.header), msg.format, bytes(msg.data)))
+            elif t == "/camera/camera_info" and k is None:
+                k = list(msg.k)
+            elif t == "/labels":
+                # A label without rectangles marks a background frame: an empty box in the CSV.
+                labels.setdefault(stamp_ns(msg.header), []).extend(
+                    [(msg.object, r.x_offset, r.y_offset, r.width, r.height) for r in msg.regions]
+                    or [(msg.object, "", "", "", "")])
+            elif t == "/ground_truth/pose":
+                gt_pose[stamp_ns(msg.header)] = pose(msg.pose.position, msg.pose.orientation)
+            elif t == "/tf_static":
+                # The session's one mount: base_link -> the camera's optical frame.
+                tr = msg.transforms[0].transform
+                mount = pose(tr.translation, tr.rotation)
+            elif t == "/ground_truth/objects":
+                truth = msg
+    if not frames or k is None or mount is None or truth is None:
+        sys.exit(f"{session}: needs frames, camera info, /tf_static and ground truth")
+    gt_times = np.array(sorted(gt_pose))
+    traj, rows = [], ["image,x,y,width,height,object"]
+    for t, fmt, data in frames:
+        # The robot stands still while it takes a frame: the nearest true pose is its pose.
+        near = int(gt_times[np.argmin(np.abs(gt_times - t))])
+        world_from_camera = gt_pose[near] @ mount
+        q = rot_to_quat(world_from_camera[:3, :3])
+        p = world_from_camera[:3, 3]
+        name = f"{t / 1e9:.6f}.{'png' if 'png' in fmt else 'jpg'}"
+        open(os.path.join(out, "images", name), "wb").write(data)
+        traj.append(f"{t / 1e9:.6f} {p[0]:.9f} {p[1]:.9f} {p[2]:.9f} {q[0]:.9f} {q[1]:.9f} {q[2]:.9f} {q[3]:.9f}")
+        for obj, x, y, w, h in labels.get(t, []):
+            rows.append(f"{name},{x},{y},{w},{h},{obj}")
+    open(os.path.join(out, "trajectory.txt"), "w").write("# timestamp tx ty tz qx qy qz qw\n" + "\n".join(traj) + "\n")
+    open(os.path.join(out, "labels.csv"), "w").write("\n".join(rows) + "\n")
+    open(os.path.join(out, "camera.txt"), "w").write(f"{k[0]},{k[4]},{k[2]},{k[5]}\n")
+    # Boxes of one name that touch are one instance (a chair's seat, back and legs), scored
+    # at their volume-weighted centroid, as `objloc eval` groups them.
+    boxes = [(n, np.array([c.position.x, c.position.y, c.position.z]), np.array([s.x, s.y, s.z]))
+             for n, c, s in zip(truth.object, truth.box_center, truth.box_size)]
+    group = list(range(len(boxes)))
+
+    def root(i):
+        while group[i] != i:
+            i = group[i]
+        return i
+    for i, (ni, ci, si) in enumerate(boxes):
+        for j, (nj, cj, sj) in enumerate(boxes[:i]):
+            if ni == nj and np.all(np.abs(ci - cj) <= (si + sj) / 2 + 1e-9):
+                group[root(i)] = root(j)
+    instances = {}
+    for i, (n, c, s) in enumerate(boxes):
+        acc = instances.setdefault((n, root(i)), [0.0, np.zeros(3)])
+        acc[0] += float(np.prod(s))
+        acc[1] += float(np.prod(s)) * c
+    centres = {}
+    for (n, _), (v, m) in sorted(instances.items(), key=lambda kv: kv[0][1]):
+        centres.setdefault(n, []).append(list(m / v))
+    json.dump(centres, open(os.path.join(out, "truth.json"), "w"))
+    print(f"{len(frames)} frames, {len(rows) - 1} label rows -> {out}")
+
+
+if __name__ == "__main__":
+    main()
