@@ -101,22 +101,28 @@ def main():
     open(os.path.join(out, "trajectory.txt"), "w").write("# timestamp tx ty tz qx qy qz qw\n" + "\n".join(traj) + "\n")
     open(os.path.join(out, "labels.csv"), "w").write("\n".join(rows) + "\n")
     open(os.path.join(out, "camera.txt"), "w").write(f"{k[0]},{k[4]},{k[2]},{k[5]}\n")
-    # Boxes of one name that touch are one instance (a chair's seat, back and legs), scored
-    # at their volume-weighted centroid, as `objloc eval` groups them.
-    boxes = [(n, np.array([c.position.x, c.position.y, c.position.z]), np.array([s.x, s.y, s.z]))
-             for n, c, s in zip(truth.object, truth.box_center, truth.box_size)]
+    # Boxes of one name whose bounds touch (within 0.01 m, `eval::PART_TOUCH_M`) are one
+    # instance (a chair's seat, back and legs), scored at their volume-weighted centroid, as
+    # `objloc eval` groups them.
+    boxes = []
+    for n, c, s in zip(truth.object, truth.box_center, truth.box_size):
+        r = quat_to_rot([c.orientation.x, c.orientation.y, c.orientation.z, c.orientation.w])
+        half = np.abs(r) @ (np.array([s.x, s.y, s.z]) / 2)
+        centre = np.array([c.position.x, c.position.y, c.position.z])
+        boxes.append((n, centre, np.array([s.x, s.y, s.z]), centre - half, centre + half))
     group = list(range(len(boxes)))
 
     def root(i):
         while group[i] != i:
             i = group[i]
         return i
-    for i, (ni, ci, si) in enumerate(boxes):
-        for j, (nj, cj, sj) in enumerate(boxes[:i]):
-            if ni == nj and np.all(np.abs(ci - cj) <= (si + sj) / 2 + 1e-9):
-                group[root(i)] = root(j)
+    for i, (ni, _, _, lo_i, hi_i) in enumerate(boxes):
+        for j, (nj, _, _, lo_j, hi_j) in enumerate(boxes[:i]):
+            if ni == nj and np.all(lo_i <= hi_j + 0.01) and np.all(lo_j <= hi_i + 0.01):
+                ri, rj = root(i), root(j)
+                group[max(ri, rj)] = min(ri, rj)
     instances = {}
-    for i, (n, c, s) in enumerate(boxes):
+    for i, (n, c, s, _, _) in enumerate(boxes):
         acc = instances.setdefault((n, root(i)), [0.0, np.zeros(3)])
         acc[0] += float(np.prod(s))
         acc[1] += float(np.prod(s)) * c
