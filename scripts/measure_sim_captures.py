@@ -11,8 +11,11 @@ Sets: wide (our simulator's six held-out-style scenes, tour seeds 1-8: recorded 
 renderer's rooms; skipped with a message where absent).
 
 Usage: scripts/measure_sim_captures.py [--sets wide,foreign] [--configs default,rgb332]
-       [-- extra fuse flags...]     (from the repository root; needs target/pyenv, which the
+       [--perturb] [-- extra fuse flags...]     (from the repository root; needs target/pyenv, which the
        tests create; OBJLOC_BIN names another binary)
+--perturb: every capture's frames perturbed in exposure, white balance and motion blur as
+scripts/perturb_realdata.py does the real captures' (sessions in
+target/measure-sim-captures-perturbed).
 Configurations: default (the capture's training defaults), rgb332 (`train --features rgb332
 --augment none`), extent (default training, `fuse --locate extent`).
 """
@@ -28,6 +31,17 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 BIN = os.environ.get("OBJLOC_BIN") or os.path.join(ROOT, "target", "release", "objloc")
 PY = os.path.join(ROOT, "target", "pyenv", "bin", "python")
 OUT = os.path.join(ROOT, "target", "measure-sim-captures")
+# Each capture's frames perturbed as scripts/perturb_realdata.py perturbs the real captures'
+# (exposure, white balance, motion blur), seeded by the session's name.
+PERTURB = """
+import glob, os, sys, zlib
+import numpy as np
+sys.path.insert(0, sys.argv[1])
+from perturb_realdata import pert
+rng = np.random.default_rng(zlib.crc32(sys.argv[3].encode()))
+for f in sorted(glob.glob(os.path.join(sys.argv[2], '*'))):
+    pert(f, f, rng)
+"""
 HELDOUT = os.path.join(ROOT, "target", "measure-heldout")
 FOREIGN = os.environ.get("FOREIGN_DIR", os.path.join(ROOT, "..", "shared", "foreign", "sessions"))
 SCENES = ["chair", "bottle", "two-chairs", "two-bottles", "chair-bare-floor", "chair-tiled-floor"]
@@ -43,6 +57,9 @@ def run(args):
     return p.stdout
 
 
+PERTURBED = False
+
+
 def as_capture(session):
     """The session imported as a capture (cached), and its true centres."""
     name = os.path.basename(session)[:-5]
@@ -50,6 +67,8 @@ def as_capture(session):
     mcap = d + ".mcap"
     if not os.path.exists(mcap):
         run([PY, os.path.join(ROOT, "scripts", "sim_as_capture.py"), session, d])
+        if PERTURBED:
+            run([PY, "-c", PERTURB, os.path.join(ROOT, "scripts"), os.path.join(d, "images"), name])
         cam = open(os.path.join(d, "camera.txt")).read().strip()
         run([BIN, "record", "import", "--images", os.path.join(d, "images"), "--trajectory",
              os.path.join(d, "trajectory.txt"), "--camera", cam, "--labels",
@@ -107,8 +126,13 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--sets", default="wide,foreign")
     ap.add_argument("--configs", default="default,rgb332")
+    ap.add_argument("--perturb", action="store_true",
+                    help="perturb every capture's frames (into target/measure-sim-captures-perturbed)")
     ap.add_argument("extra", nargs="*")
     a = ap.parse_args()
+    global OUT, PERTURBED
+    if a.perturb:
+        OUT, PERTURBED = OUT + "-perturbed", True
     os.makedirs(OUT, exist_ok=True)
     sets, configs = a.sets.split(","), a.configs.split(",")
     jobs = [(s, tr, tours, c) for s, tr, tours in pairs() if s in sets for c in configs]

@@ -91,7 +91,7 @@ pub struct Args {
 }
 
 /// The training configuration the options ask for, checked before any work; the tile head's
-/// channels are rgb332 until the sessions choose them ([`choose_features`]).
+/// channels are rgb332 until the sessions choose them ([`fit_to_sessions`]).
 fn config(args: &Args) -> anyhow::Result<TrainConfig> {
     let cfg = TrainConfig {
         features: args.features.unwrap_or(FeatureSpec::RGB332),
