@@ -12,7 +12,7 @@ size, inside the rectangle in >= 95 % of the frames, tile AUC >= 0.93.
 Usage: scripts/measure_realdata.py [--markdown OUT.md] [-- extra fuse flags...]
        (from the repository root; stdlib only; calls target/release/objloc)
 Skips with a message when ../shared/realdata is absent (REALDATA_DIR overrides it; its
-sessions then go to target/measure-realdata-<its directory name>).
+sessions then go to target/measure-realdata-<its directory name>-<hash of its path>).
 TRAIN_FLAGS in the environment are passed to `objloc train`; OBJLOC_BIN names the binary
 (default target/release/objloc); `--tag T` names the models and
 reports `OBJECT-T.json` so that several settings can be measured side by side.
@@ -24,6 +24,7 @@ object (a held-out capture's labeller picks frames of their own).
 """
 import random
 import argparse
+import hashlib
 import json
 import os
 import re
@@ -38,7 +39,9 @@ DATA = os.environ.get("REALDATA_DIR", os.path.join(ROOT, "..", "shared", "realda
 # Sessions are built once per output directory and reused, so another REALDATA_DIR gets its
 # own (a perturbed copy measured into the unperturbed sessions would measure those).
 OUT = os.path.join(ROOT, "target", "measure-realdata" + (
-    "-" + os.path.basename(os.path.normpath(DATA)) if "REALDATA_DIR" in os.environ else ""))
+    "-" + os.path.basename(os.path.normpath(DATA)) + "-"
+    + hashlib.sha256(os.path.realpath(DATA).encode()).hexdigest()[:8]
+    if "REALDATA_DIR" in os.environ else ""))
 LABELS = os.path.join(ROOT, "recordings", "realdata")
 
 # capture -> (import flags, default object name, objects to model)

@@ -5,7 +5,8 @@ each frame's stamp composed with the /tf_static mount), its intrinsics, its labe
 as a labels CSV, and the objects' true centres (per name, a list: the volume-weighted
 centroid of each group of touching boxes, as `objloc eval` scores it). `objloc record import --trajectory` then makes a session
 without /cmd_vel of it: the path a real capture takes (issue #18), on a scene whose truth is
-known (docs/realdata.md, "A simulated capture").
+known (docs/realdata.md, "A simulated capture"). A fixed pinhole camera on base_link only: a
+session with lens distortion or a camera moving on /tf is refused with a message.
 
 Usage: target/pyenv/bin/python scripts/sim_as_capture.py SESSION.mcap OUT_DIR
 Writes OUT_DIR/images/<stamp>.png, trajectory.txt, labels.csv, camera.txt (FX,FY,CX,CY) and
@@ -69,6 +70,9 @@ def main():
             if t == "/camera/image/compressed":
                 frames.append((stamp_ns(msg.header), msg.format, bytes(msg.data)))
             elif t == "/camera/camera_info" and k is None:
+                # A pinhole only: a lens's distortion would need `--distortion` too.
+                if any(v != 0 for v in msg.d):
+                    sys.exit(f"{session}: the camera has lens distortion {list(msg.d)}: not written by this script")
                 k = list(msg.k)
             elif t == "/labels":
                 # A label without rectangles marks a background frame: an empty box in the CSV.
@@ -79,8 +83,13 @@ def main():
                 gt_pose[stamp_ns(msg.header)] = pose(msg.pose.position, msg.pose.orientation)
             elif t == "/tf_static":
                 # The session's one mount: base_link -> the camera's optical frame.
+                if len(msg.transforms) != 1 or msg.transforms[0].header.frame_id != "base_link":
+                    sys.exit(f"{session}: /tf_static is not one base_link -> camera transform")
                 tr = msg.transforms[0].transform
                 mount = pose(tr.translation, tr.rotation)
+            elif t == "/tf":
+                # A moving mount (a pan-tilt head) would need /tf chained at each frame.
+                sys.exit(f"{session}: the camera moves on /tf: not written by this script")
             elif t == "/ground_truth/objects":
                 truth = msg
     if not frames or k is None or mount is None or truth is None:
@@ -88,8 +97,11 @@ def main():
     gt_times = np.array(sorted(gt_pose))
     traj, rows = [], ["image,x,y,width,height,object"]
     for t, fmt, data in frames:
-        # The robot stands still while it takes a frame: the nearest true pose is its pose.
+        # The robot stands still while it takes a frame: the nearest true pose is its pose,
+        # within 1 ms of the frame's stamp.
         near = int(gt_times[np.argmin(np.abs(gt_times - t))])
+        if abs(near - t) > 1_000_000:
+            sys.exit(f"{session}: no true pose within 1 ms of the frame at {t} ns")
         world_from_camera = gt_pose[near] @ mount
         q = rot_to_quat(world_from_camera[:3, :3])
         p = world_from_camera[:3, 3]

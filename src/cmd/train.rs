@@ -210,7 +210,11 @@ fn fit_to_sessions(
         cfg.augment = d.augment;
         chosen.push(format!("augment {}", d.augment.name()));
     }
-    let why = if d.capture {
+    let why = if d.capture && cfg.augment == Augment::None && args.augment.is_none() {
+        "a training session has no /cmd_vel: a posed capture, whose exposure and white balance \
+         change between frames; no light variants at a stride of the tile's size, which cuts \
+         no shifted grids"
+    } else if d.capture {
         "a training session has no /cmd_vel: a posed capture, whose exposure and white balance \
          change between frames"
     } else {

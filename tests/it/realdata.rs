@@ -90,6 +90,10 @@ fn the_milk_carton_is_located_inside_its_rectangles_with_fitted_defaults() {
         &["train", p(&train), "-o", p(&model), "--no-rerun"],
         &[],
     ));
+    // An imported capture has no /cmd_vel: the capture's channels and light variants.
+    let m = json(&model);
+    assert_eq!(m["features"], "rgb332+hs");
+    assert_eq!(m["metadata"]["augment"], "light");
     let report = d.join("r.json");
     let args = [
         "fuse",

@@ -509,6 +509,22 @@ pub fn export_features(set: &ExampleSet, dir: &Path) -> Result<(), crate::io::np
 mod tests {
     use super::*;
 
+    /// The names `Augment::name` prints are those `train --augment` parses and the model
+    /// file holds.
+    #[test]
+    fn augment_names_match_the_command_line_and_the_model_file() {
+        for v in [Augment::None, Augment::Light] {
+            assert_eq!(
+                <Augment as clap::ValueEnum>::from_str(v.name(), false),
+                Ok(v)
+            );
+            assert_eq!(
+                serde_json::to_string(&v).unwrap(),
+                format!("\"{}\"", v.name())
+            );
+        }
+    }
+
     fn roi(x: u32, y: u32, w: u32, h: u32) -> RegionOfInterest {
         RegionOfInterest {
             x_offset: x,

@@ -736,8 +736,9 @@ impl Default for RegionConfig {
     }
 }
 
-/// The defaults of `objloc train`: rgb332 features (they fuse best, docs/fuser.md), 8 px
-/// tiles, shifted grids every 4 px, seed 0, every label.
+/// The defaults of `objloc train` for a ground robot's sessions: rgb332 features (they fuse
+/// best, docs/fuser.md), 8 px tiles, shifted grids every 4 px, seed 0, every label (a posed
+/// capture's channels and light variants: `learn::defaults`).
 impl Default for TrainConfig {
     fn default() -> Self {
         Self {

@@ -118,7 +118,8 @@ pub struct FeatureSpec {
 }
 
 impl FeatureSpec {
-    /// The paper's 256-bin colour histogram, rgb332: `objloc train`'s default.
+    /// The paper's 256-bin colour histogram, rgb332: `objloc train`'s default for a ground
+    /// robot's sessions.
     pub const RGB332: FeatureSpec = FeatureSpec { mask: 1 };
     /// The hsv colour histogram alone.
     pub const HSV: FeatureSpec = FeatureSpec { mask: 2 };
