@@ -70,8 +70,10 @@ def as_capture(session):
         if PERTURBED:
             run([PY, "-c", PERTURB, os.path.join(ROOT, "scripts"), os.path.join(d, "images"), name])
         cam = open(os.path.join(d, "camera.txt")).read().strip()
+        dist = os.path.join(d, "distortion.txt")
+        lens = ["--distortion", open(dist).read().strip()] if os.path.exists(dist) else []
         run([BIN, "record", "import", "--images", os.path.join(d, "images"), "--trajectory",
-             os.path.join(d, "trajectory.txt"), "--camera", cam, "--labels",
+             os.path.join(d, "trajectory.txt"), "--camera", cam, *lens, "--labels",
              os.path.join(d, "labels.csv"), "-q", "-o", mcap])
     truth = [c for cs in json.load(open(os.path.join(d, "truth.json"))).values() for c in cs]
     return mcap, truth

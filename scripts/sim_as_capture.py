@@ -5,12 +5,13 @@ each frame's stamp composed with the /tf_static mount), its intrinsics, its labe
 as a labels CSV, and the objects' true centres (per name, a list: the volume-weighted
 centroid of each group of touching boxes, as `objloc eval` scores it). `objloc record import --trajectory` then makes a session
 without /cmd_vel of it: the path a real capture takes (issue #18), on a scene whose truth is
-known (docs/realdata.md, "A simulated capture"). A fixed pinhole camera on base_link only: a
-session with lens distortion or a camera moving on /tf is refused with a message.
+known (docs/realdata.md, "A simulated capture"). A camera fixed on base_link only (a camera
+moving on /tf is refused with a message); a radial-tangential lens is written for
+`--distortion`.
 
 Usage: target/pyenv/bin/python scripts/sim_as_capture.py SESSION.mcap OUT_DIR
-Writes OUT_DIR/images/<stamp>.png, trajectory.txt, labels.csv, camera.txt (FX,FY,CX,CY) and
-truth.json. Needs mcap and mcap-ros2-support (the test environment's target/pyenv has them).
+Writes OUT_DIR/images/<stamp>.png, trajectory.txt, labels.csv, camera.txt (FX,FY,CX,CY),
+distortion.txt (K1,K2,P1,P2,K3, for `--distortion`; only for a distorted lens) and truth.json. Needs mcap and mcap-ros2-support (the test environment's target/pyenv has them).
 """
 import json
 import os
@@ -63,17 +64,17 @@ def stamp_ns(h):
 def main():
     session, out = sys.argv[1], sys.argv[2]
     os.makedirs(os.path.join(out, "images"), exist_ok=True)
-    frames, labels, gt_pose, mount, k, truth = [], {}, {}, None, None, None
+    frames, labels, gt_pose, mount, k, d, truth = [], {}, {}, None, None, None, None
     with open(session, "rb") as f:
         for _, channel, _, msg in make_reader(f, decoder_factories=[DecoderFactory()]).iter_decoded_messages():
             t = channel.topic
             if t == "/camera/image/compressed":
                 frames.append((stamp_ns(msg.header), msg.format, bytes(msg.data)))
             elif t == "/camera/camera_info" and k is None:
-                # A pinhole only: a lens's distortion would need `--distortion` too.
-                if any(v != 0 for v in msg.d):
-                    sys.exit(f"{session}: the camera has lens distortion {list(msg.d)}: not written by this script")
-                k = list(msg.k)
+                if msg.distortion_model not in ("", "plumb_bob", "rational_polynomial") or any(
+                        v != 0 for v in list(msg.d)[5:]):
+                    sys.exit(f"{session}: lens model {msg.distortion_model} {list(msg.d)} is not k1,k2,p1,p2,k3")
+                k, d = list(msg.k), (list(msg.d) + [0.0] * 5)[:5]
             elif t == "/labels":
                 # A label without rectangles marks a background frame: an empty box in the CSV.
                 labels.setdefault(stamp_ns(msg.header), []).extend(
@@ -113,6 +114,12 @@ def main():
     open(os.path.join(out, "trajectory.txt"), "w").write("# timestamp tx ty tz qx qy qz qw\n" + "\n".join(traj) + "\n")
     open(os.path.join(out, "labels.csv"), "w").write("\n".join(rows) + "\n")
     open(os.path.join(out, "camera.txt"), "w").write(f"{k[0]},{k[4]},{k[2]},{k[5]}\n")
+    # `--distortion K1,K2,P1,P2,K3` (ROS's d is k1, k2, p1, p2, k3): written only for a lens.
+    dist = os.path.join(out, "distortion.txt")
+    if any(v != 0 for v in d):
+        open(dist, "w").write(",".join(repr(float(v)) for v in d) + "\n")
+    elif os.path.exists(dist):
+        os.remove(dist)
     # Boxes of one name whose bounds touch (within 0.01 m, `eval::PART_TOUCH_M`) are one
     # instance (a chair's seat, back and legs), scored at their volume-weighted centroid, as
     # `objloc eval` groups them.
