@@ -148,7 +148,7 @@ fn camera_resolution() {
     use objloc_core::fuse::replay::{FuseOptions, replay};
     use objloc_core::io::session::{SessionReader, Topics};
     use objloc_core::learn::dataset::load_session;
-    use objloc_core::learn::defaults::TileHeadDefaults;
+    use objloc_core::learn::defaults::{TileHeadChoice, TileHeadDefaults};
     use objloc_core::learn::model::{TrainConfig, examples, fit_model};
     use objloc_core::sim::{Kind, SimOptions, builtin_scene, record};
     let dir = std::env::temp_dir().join(format!("objloc-bench-res-{}", std::process::id()));
@@ -195,10 +195,13 @@ fn camera_resolution() {
             (ms, model.unwrap())
         };
         let robot_cfg = TrainConfig::default();
-        let d = TileHeadDefaults::for_sessions(&[0], robot_cfg.train_stride_px, robot_cfg.tile_px);
+        // A capture of this size: its channels, light variants and tiles.
+        let d = TileHeadDefaults::of(&[0], w.min(h), TileHeadChoice::default());
         let capture_cfg = TrainConfig {
             features: d.features,
             augment: d.augment,
+            tile_px: d.tile_px,
+            train_stride_px: d.train_stride_px,
             ..robot_cfg.clone()
         };
         let (train_ms, model) = train_with(&robot_cfg);
@@ -223,9 +226,10 @@ fn camera_resolution() {
             "{w} x {h} camera: training on its 3 labelled views (both heads) {train_ms:.0} ms; a frame classified and fused {refined:.1} ms (default), {plain:.1} ms (--no-refine-poses)"
         );
         println!(
-            "{w} x {h} camera, a posed capture's training defaults ({} features, augment {}): training {capture_train_ms:.0} ms; a frame classified and fused {capture:.1} ms (default)",
+            "{w} x {h} camera, a posed capture's training defaults ({} features, augment {}, tile {} px): training {capture_train_ms:.0} ms; a frame classified and fused {capture:.1} ms (default)",
             capture_cfg.features,
-            capture_cfg.augment.name()
+            capture_cfg.augment.name(),
+            capture_cfg.tile_px
         );
         per_frame.push(refined);
     }

@@ -6,7 +6,7 @@ use std::time::Instant;
 
 use anyhow::Context;
 use objloc_core::learn::dataset::{Augment, LoadedSession, export_features, load_session};
-use objloc_core::learn::defaults::TileHeadDefaults;
+use objloc_core::learn::defaults::{TILE_PX, TRAIN_STRIDE_PX, TileHeadChoice, TileHeadDefaults};
 use objloc_core::learn::features::FeatureSpec;
 use objloc_core::learn::model::{Model, RegionConfig, TrainConfig, examples, fit_model};
 use objloc_core::learn::tree::TreeParams;
@@ -35,13 +35,14 @@ pub struct Args {
     /// Seed of the split into training, test and pruning thirds.
     #[arg(long, default_value_t = 0)]
     seed: u64,
-    /// Tile side in pixels.
-    #[arg(long = "tile", default_value_t = 8)]
-    tile_px: u32,
+    /// Tile side in pixels. Default: 8, and for a posed capture (no /cmd_vel) 8 more for every
+    /// 880 px of its frames' shorter side past the first (16 at 1080 x 1920); printed.
+    #[arg(long = "tile")]
+    tile_px: Option<u32>,
     /// Also train on tiles of grids shifted by multiples of this many pixels (= --tile: the
-    /// aligned grid only).
-    #[arg(long = "train-stride", default_value_t = 4)]
-    train_stride_px: u32,
+    /// aligned grid only). Default: 4, half the tile where the session chose the tile.
+    #[arg(long = "train-stride")]
+    train_stride_px: Option<u32>,
     /// Photometric variants of the frames the shifted training grids are cut from: none, or
     /// light (darker, brighter, warmer, cooler; docs/tree.md). Default: none when every
     /// session has /cmd_vel, light otherwise (with shifted grids); the choice is printed.
@@ -95,9 +96,9 @@ pub struct Args {
 fn config(args: &Args) -> anyhow::Result<TrainConfig> {
     let cfg = TrainConfig {
         features: args.features.unwrap_or(FeatureSpec::RGB332),
-        tile_px: args.tile_px,
+        tile_px: args.tile_px.unwrap_or(TILE_PX),
         context_tiles: args.context_tiles,
-        train_stride_px: args.train_stride_px,
+        train_stride_px: args.train_stride_px.unwrap_or(TRAIN_STRIDE_PX),
         augment: args.augment.unwrap_or(Augment::None),
         seed: args.seed,
         object: args.object.clone(),
@@ -189,39 +190,58 @@ fn log_to_rerun(args: &Args, model: &Model, sessions: &[LoadedSession]) -> anyho
     Ok(())
 }
 
-/// Sets what `--features` and `--augment` left open to the sessions' defaults
-/// ([`TileHeadDefaults`]); the line that says so, None when both were given.
+/// Sets what `--features`, `--augment`, `--tile` and `--train-stride` left open to the
+/// sessions' defaults ([`TileHeadDefaults`]); the line that says so, None when all were given.
 fn fit_to_sessions(
     args: &Args,
     cfg: &mut TrainConfig,
     sessions: &[LoadedSession],
 ) -> Option<String> {
-    if args.features.is_some() && args.augment.is_some() {
+    let choice = TileHeadChoice {
+        features: args.features,
+        augment: args.augment,
+        tile_px: args.tile_px,
+        train_stride_px: args.train_stride_px,
+    };
+    if choice.features.is_some()
+        && choice.augment.is_some()
+        && choice.tile_px.is_some()
+        && choice.train_stride_px.is_some()
+    {
         return None;
     }
-    let commands: Vec<usize> = sessions.iter().map(|s| s.commands).collect();
-    let d = TileHeadDefaults::for_sessions(&commands, cfg.train_stride_px, cfg.tile_px);
+    let d = TileHeadDefaults::for_sessions(sessions, choice);
+    (cfg.features, cfg.augment) = (d.features, d.augment);
+    (cfg.tile_px, cfg.train_stride_px) = (d.tile_px, d.train_stride_px);
     let mut chosen = Vec::new();
-    if args.features.is_none() {
-        cfg.features = d.features;
+    if choice.features.is_none() {
         chosen.push(format!("features {}", d.features));
     }
-    if args.augment.is_none() {
-        cfg.augment = d.augment;
+    if choice.augment.is_none() {
         chosen.push(format!("augment {}", d.augment.name()));
     }
-    let why = if d.capture && cfg.augment == Augment::None && args.augment.is_none() {
-        "a training session has no /cmd_vel: a posed capture, whose exposure and white balance \
-         change between frames; no light variants at a stride of the tile's size, which cuts \
-         no shifted grids"
-    } else if d.capture {
-        "a training session has no /cmd_vel: a posed capture, whose exposure and white balance \
-         change between frames"
+    if choice.tile_px.is_none() {
+        chosen.push(format!("tile {} px", d.tile_px));
+    }
+    if choice.train_stride_px.is_none() {
+        chosen.push(format!("train stride {} px", d.train_stride_px));
+    }
+    let mut why = if d.capture {
+        format!(
+            "a training session has no /cmd_vel: a posed capture, whose exposure and white \
+             balance change between frames, its frames {} px on the shorter side",
+            d.short_side_px
+        )
     } else {
-        "every training session has /cmd_vel: a ground robot's"
+        "every training session has /cmd_vel: a ground robot's".to_owned()
     };
+    if d.capture && choice.augment.is_none() && d.augment == Augment::None {
+        why.push_str(
+            "; no light variants at a stride of the tile's size, which cuts no shifted grids",
+        );
+    }
     Some(format!(
-        "{} ({why}; --features and --augment set them)",
+        "{} ({why}; --features, --augment, --tile and --train-stride set them)",
         chosen.join(", ")
     ))
 }

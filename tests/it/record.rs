@@ -748,7 +748,7 @@ fn a_simulated_tour_imported_as_a_capture_finds_its_chair() {
             &[],
         ));
         assert!(
-            text.contains("features rgb332+hs, augment light (a training session has no /cmd_vel"),
+            text.contains("features rgb332+hs, augment light, tile 8 px, train stride 4 px (a training session has no /cmd_vel"),
             "{case}: {text}"
         );
         let report = dir.path().join(format!("{case}-r.json"));

@@ -180,7 +180,7 @@ fn train_then_predict_finds_the_box() {
     // The session has no /cmd_vel, as a posed capture: the capture's channels and light
     // variants, said on stdout.
     assert!(
-        text.contains("features rgb332+hs, augment light (a training session has no /cmd_vel"),
+        text.contains("features rgb332+hs, augment light, tile 8 px, train stride 4 px (a training session has no /cmd_vel"),
         "{text}"
     );
     assert_eq!(m["features"], "rgb332+hs");
@@ -618,4 +618,91 @@ fn the_region_head_meets_the_tour_auc_target_the_tile_head_cannot() {
 /// A session path for option checks that fail before any session is read.
 fn unread_session(dir: &Path) -> PathBuf {
     dir.join("never-read.mcap")
+}
+
+/// A capture's tiles grow with its frames: two 900 x 900 frames (shorter side past 880 px),
+/// a red box on grey in one and grey alone in the other, train in 16 px tiles with 8 px
+/// shifts, said on stdout and stored in the model; `--tile` keeps the tile and the 4 px
+/// stride.
+#[test]
+fn a_large_captures_tiles_grow_with_its_frames() {
+    use image::ImageEncoder;
+    let dir = tempfile::tempdir().unwrap();
+    let session = dir.path().join("large.mcap");
+    let side = 900u32;
+    let mut w = SessionWriter::create(&session).unwrap();
+    for (k, rect) in [Some((300u32, 250u32, 240u32, 320u32)), None]
+        .into_iter()
+        .enumerate()
+    {
+        let stamp = T0_NS + k as i64 * PERIOD_NS;
+        let mut data = Vec::with_capacity((side * side * 3) as usize);
+        for y in 0..side {
+            for x in 0..side {
+                let inside = rect.is_some_and(|(rx, ry, rw, rh)| {
+                    (rx..rx + rw).contains(&x) && (ry..ry + rh).contains(&y)
+                });
+                data.extend_from_slice(if inside {
+                    &[200, 40, 30]
+                } else {
+                    &[120, 120, 120]
+                });
+            }
+        }
+        let mut png = Vec::new();
+        image::codecs::png::PngEncoder::new(&mut png)
+            .write_image(&data, side, side, image::ExtendedColorType::Rgb8)
+            .unwrap();
+        let img = CompressedImage {
+            header: Header::new(stamp, "camera_optical_frame"),
+            format: "png".into(),
+            data: png,
+        };
+        w.write("/camera/image/compressed", stamp, &img).unwrap();
+        let regions = rect
+            .map(|(x, y, wd, ht)| RegionOfInterest {
+                x_offset: x,
+                y_offset: y,
+                height: ht,
+                width: wd,
+                do_rectify: false,
+            })
+            .into_iter()
+            .collect();
+        let label = ObjectLabel {
+            header: Header::new(stamp, "camera_optical_frame"),
+            object: "box".into(),
+            regions,
+        };
+        w.write("/labels", stamp, &label).unwrap();
+    }
+    w.finish().unwrap();
+    let model = dir.path().join("m.json");
+    let text = ok(&objloc(
+        &["train", p(&session), "-o", p(&model), "--no-rerun"],
+        &[],
+    ));
+    assert!(
+        text.contains("tile 16 px, train stride 8 px (a training session has no /cmd_vel")
+            && text.contains("its frames 900 px on the shorter side"),
+        "{text}"
+    );
+    let m: serde_json::Value = serde_json::from_slice(&std::fs::read(&model).unwrap()).unwrap();
+    assert_eq!(m["tile_px"], 16);
+    assert_eq!(m["metadata"]["train_stride_px"], 8);
+    ok(&objloc(
+        &[
+            "train",
+            p(&session),
+            "-o",
+            p(&model),
+            "--no-rerun",
+            "--tile",
+            "12",
+        ],
+        &[],
+    ));
+    let m: serde_json::Value = serde_json::from_slice(&std::fs::read(&model).unwrap()).unwrap();
+    assert_eq!(m["tile_px"], 12);
+    assert_eq!(m["metadata"]["train_stride_px"], 4);
 }
