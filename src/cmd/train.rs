@@ -133,7 +133,26 @@ fn config(args: &Args) -> anyhow::Result<TrainConfig> {
             r.context_tiles,
             objloc_core::learn::model::MAX_CONTEXT_TILES
         );
-        // Checked here too, so a bad value fails before the tile head is trained.
+    }
+    // Before any work, at the tile asked for or 8 px; a tile the sessions fit is never
+    // smaller, so what passes here passes there too (checked again after fitting).
+    check_tiles(&cfg)?;
+    anyhow::ensure!(
+        cfg.tree.prune_pseudo.is_finite() && cfg.tree.prune_pseudo >= 0.0,
+        "--prune-pseudo {} must be a number >= 0",
+        cfg.tree.prune_pseudo
+    );
+    anyhow::ensure!(
+        (0.0..1.0).contains(&cfg.tree.base_mix),
+        "--base-mix {} must be in [0, 1)",
+        cfg.tree.base_mix
+    );
+    Ok(cfg)
+}
+
+/// The options that depend on the tile side, checked before the tile head is trained.
+fn check_tiles(cfg: &TrainConfig) -> anyhow::Result<()> {
+    if let Some(r) = &cfg.region {
         anyhow::ensure!(
             (1..=cfg.tile_px).contains(&r.train_stride_px),
             "--region-stride {} px must be 1 to the tile size {} px",
@@ -148,17 +167,7 @@ fn config(args: &Args) -> anyhow::Result<TrainConfig> {
         cfg.train_stride_px,
         cfg.tile_px
     );
-    anyhow::ensure!(
-        cfg.tree.prune_pseudo.is_finite() && cfg.tree.prune_pseudo >= 0.0,
-        "--prune-pseudo {} must be a number >= 0",
-        cfg.tree.prune_pseudo
-    );
-    anyhow::ensure!(
-        (0.0..1.0).contains(&cfg.tree.base_mix),
-        "--base-mix {} must be in [0, 1)",
-        cfg.tree.base_mix
-    );
-    Ok(cfg)
+    Ok(())
 }
 
 /// The tree as a graph and the training frames with their maps, in Rerun (by default beside
@@ -276,6 +285,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         );
     }
     let chosen = fit_to_sessions(&args, &mut cfg, &sessions);
+    check_tiles(&cfg)?;
     let t_load = t0.elapsed();
     let t1 = Instant::now();
     stage.set_message("train: tile features");
