@@ -7,10 +7,12 @@ true centres by `objloc eval` of the original session (docs/realdata.md, "A simu
 many tours have the right count with every object within 0.12 m, and the mean error.
 
 Sets: wide (our simulator's six held-out-style scenes, tour seeds 1-8: recorded by
-`scripts/measure_sessions.py --sets wide` first) and foreign (../shared/foreign: another
-renderer's rooms; skipped with a message where absent).
+`scripts/measure_sessions.py --sets wide` first), mounts (a chair seen from a pan-tilt head,
+its mount chained through /tf, and through a barrel lens: scripts/heldout/chair-pan-tilt.json
+and chair-distorted.json, tour seeds 1-8, recorded here) and foreign (../shared/foreign:
+another renderer's rooms; skipped with a message where absent).
 
-Usage: scripts/measure_sim_captures.py [--sets wide,foreign] [--configs default,rgb332]
+Usage: scripts/measure_sim_captures.py [--sets wide,mounts,foreign] [--configs default,rgb332]
        [--perturb] [-- extra fuse flags...]     (from the repository root; needs target/pyenv, which the
        tests create; OBJLOC_BIN names another binary)
 --perturb: every capture's frames perturbed in exposure, white balance and motion blur as
@@ -88,6 +90,19 @@ def pairs():
                         [os.path.join(HELDOUT, f"{s}-wide-{k}.mcap") for k in range(1, 9)]))
     else:
         print("wide: skipped, run scripts/measure_sessions.py --sets wide first")
+    # A pan-tilt head (the mount chained through /tf) and a barrel lens (`--distortion`).
+    rec = os.path.join(OUT, "recorded")
+    os.makedirs(rec, exist_ok=True)
+    for scene in ["chair-pan-tilt", "chair-distorted"]:
+        f = os.path.join(ROOT, "scripts", "heldout", scene + ".json")
+        sessions = []
+        for kind, seed in [("train", 11)] + [("tour", k) for k in range(1, 9)]:
+            path = os.path.join(rec, f"{scene}-{kind}-{seed}.mcap")
+            if not os.path.exists(path):
+                run([BIN, "record", "sim", "--scene-file", f, "--kind", kind, "--seed", str(seed),
+                     "-q", "-o", path])
+            sessions.append(path)
+        out.append(("mounts", sessions[0], sessions[1:]))
     if os.path.isdir(FOREIGN):
         m = json.load(open(os.path.join(FOREIGN, "manifest.json")))
         for t in sorted(s["file"] for s in m["sessions"] if s["kind"] == "train"):
@@ -126,7 +141,7 @@ def measure(set_name, train, tours, config, extra):
 
 def main():
     ap = argparse.ArgumentParser()
-    ap.add_argument("--sets", default="wide,foreign")
+    ap.add_argument("--sets", default="wide,mounts,foreign")
     ap.add_argument("--configs", default="default,rgb332")
     ap.add_argument("--perturb", action="store_true",
                     help="perturb every capture's frames (into target/measure-sim-captures-perturbed)")

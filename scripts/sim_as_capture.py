@@ -5,8 +5,9 @@ each frame's stamp composed with the /tf_static mount), its intrinsics, its labe
 as a labels CSV, and the objects' true centres (per name, a list: the volume-weighted
 centroid of each group of touching boxes, as `objloc eval` scores it). `objloc record import --trajectory` then makes a session
 without /cmd_vel of it: the path a real capture takes (issue #18), on a scene whose truth is
-known (docs/realdata.md, "A simulated capture"). A camera fixed on base_link only (a camera
-moving on /tf is refused with a message); a radial-tangential lens is written for
+known (docs/realdata.md, "A simulated capture"). The camera's mount is chained from
+/tf_static and /tf at each frame's stamp (a pan-tilt head: interpolated, as tf2 does, no
+further than 50 ms past the samples); a radial-tangential lens is written for
 `--distortion`.
 
 Usage: target/pyenv/bin/python scripts/sim_as_capture.py SESSION.mcap OUT_DIR
@@ -57,6 +58,54 @@ def pose(p, o):
     return m
 
 
+def slerp(a, b, f):
+    """Spherical interpolation of unit quaternions (x, y, z, w), the shorter way."""
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    dot = float(a @ b)
+    if dot < 0:
+        b, dot = -b, -dot
+    if dot > 0.9995:
+        q = a + f * (b - a)
+        return q / np.linalg.norm(q)
+    th = np.arccos(dot)
+    return (np.sin((1 - f) * th) * a + np.sin(f * th) * b) / np.sin(th)
+
+
+def at_stamp(samples, t):
+    """A /tf link at `t` as tf2 gives it: interpolated between the samples around it (the
+    translation linearly, the rotation by slerp); None past either end by more than 50 ms."""
+    samples = sorted(samples, key=lambda s: s[0])
+    for (t0, (p0, q0)), (t1, (p1, q1)) in zip(samples, samples[1:]):
+        if t0 <= t <= t1:
+            f = 0.0 if t1 == t0 else (t - t0) / (t1 - t0)
+            qa, qb = [q0.x, q0.y, q0.z, q0.w], [q1.x, q1.y, q1.z, q1.w]
+            m = np.eye(4)
+            m[:3, :3] = quat_to_rot(slerp(qa, qb, f))
+            m[:3, 3] = (1 - f) * np.array([p0.x, p0.y, p0.z]) + f * np.array([p1.x, p1.y, p1.z])
+            return m
+    for ts, (p, q) in (samples[0], samples[-1]):
+        if abs(ts - t) <= 50_000_000:
+            return pose(p, q)
+    return None
+
+
+def mount_at(session, static, dynamic, camera_frame, t):
+    """base_link -> the camera's frame at `t`: /tf_static and /tf chained from the camera up."""
+    m, frame = np.eye(4), camera_frame
+    while frame != "base_link":
+        if frame in static:
+            parent, link = static[frame]
+        elif frame in dynamic:
+            parent, samples = dynamic[frame]
+            link = at_stamp(samples, t)
+            if link is None:
+                sys.exit(f"{session}: no /tf for {frame} within 50 ms of {t} ns")
+        else:
+            sys.exit(f"{session}: no transform from base_link to {camera_frame} ({frame} has no parent)")
+        m, frame = link @ m, parent
+    return m
+
+
 def stamp_ns(h):
     return h.stamp.sec * 1_000_000_000 + h.stamp.nanosec
 
@@ -64,12 +113,15 @@ def stamp_ns(h):
 def main():
     session, out = sys.argv[1], sys.argv[2]
     os.makedirs(os.path.join(out, "images"), exist_ok=True)
-    frames, labels, gt_pose, mount, k, d, truth = [], {}, {}, None, None, None, None
+    frames, labels, gt_pose, k, d, truth, camera_frame = [], {}, {}, None, None, None, None
+    # child frame -> (parent, transform) on /tf_static; -> (parent, [(stamp, transform)]) on /tf.
+    static, dynamic = {}, {}
     with open(session, "rb") as f:
         for _, channel, _, msg in make_reader(f, decoder_factories=[DecoderFactory()]).iter_decoded_messages():
             t = channel.topic
             if t == "/camera/image/compressed":
                 frames.append((stamp_ns(msg.header), msg.format, bytes(msg.data)))
+                camera_frame = msg.header.frame_id
             elif t == "/camera/camera_info" and k is None:
                 if msg.distortion_model not in ("", "plumb_bob", "rational_polynomial") or any(
                         v != 0 for v in list(msg.d)[5:]):
@@ -82,19 +134,18 @@ def main():
                     or [(msg.object, "", "", "", "")])
             elif t == "/ground_truth/pose":
                 gt_pose[stamp_ns(msg.header)] = pose(msg.pose.position, msg.pose.orientation)
-            elif t == "/tf_static":
-                # The session's one mount: base_link -> the camera's optical frame.
-                if len(msg.transforms) != 1 or msg.transforms[0].header.frame_id != "base_link":
-                    sys.exit(f"{session}: /tf_static is not one base_link -> camera transform")
-                tr = msg.transforms[0].transform
-                mount = pose(tr.translation, tr.rotation)
-            elif t == "/tf":
-                # A moving mount (a pan-tilt head) would need /tf chained at each frame.
-                sys.exit(f"{session}: the camera moves on /tf: not written by this script")
+            elif t in ("/tf_static", "/tf"):
+                for tr in msg.transforms:
+                    x = (tr.transform.translation, tr.transform.rotation)
+                    if t == "/tf_static":
+                        static[tr.child_frame_id] = (tr.header.frame_id, pose(*x))
+                    else:
+                        dynamic.setdefault(tr.child_frame_id, (tr.header.frame_id, []))[1].append(
+                            (stamp_ns(tr.header), x))
             elif t == "/ground_truth/objects":
                 truth = msg
-    if not frames or k is None or mount is None or truth is None:
-        sys.exit(f"{session}: needs frames, camera info, /tf_static and ground truth")
+    if not frames or k is None or truth is None:
+        sys.exit(f"{session}: needs frames, camera info and ground truth")
     gt_times = np.array(sorted(gt_pose))
     traj, rows = [], ["image,x,y,width,height,object"]
     for t, fmt, data in frames:
@@ -103,7 +154,7 @@ def main():
         near = int(gt_times[np.argmin(np.abs(gt_times - t))])
         if abs(near - t) > 1_000_000:
             sys.exit(f"{session}: no true pose within 1 ms of the frame at {t} ns")
-        world_from_camera = gt_pose[near] @ mount
+        world_from_camera = gt_pose[near] @ mount_at(session, static, dynamic, camera_frame, t)
         q = rot_to_quat(world_from_camera[:3, :3])
         p = world_from_camera[:3, 3]
         name = f"{t / 1e9:.6f}.{'png' if 'png' in fmt else 'jpg'}"
