@@ -88,33 +88,46 @@ fn write_session(path: &Path, seed: u64, frames: &[Kind]) -> Vec<i64> {
             Kind::Object(x, y, w, h) => Some((*x, *y, *w, *h)),
             _ => None,
         };
-        let img = CompressedImage {
-            header: Header::new(stamp, "camera_optical_frame"),
-            format: "png".into(),
-            data: png(&render(seed * 1000 + k as u64, rect)),
-        };
-        w.write("/camera/image/compressed", stamp, &img).unwrap();
-        let regions = match kind {
-            Kind::Object(x, y, wd, ht) => vec![RegionOfInterest {
-                x_offset: *x,
-                y_offset: *y,
-                height: *ht,
-                width: *wd,
-                do_rectify: false,
-            }],
-            _ => vec![],
-        };
-        if !matches!(kind, Kind::Unlabelled) {
-            let label = ObjectLabel {
-                header: Header::new(stamp, "camera_optical_frame"),
-                object: "box".into(),
-                regions,
-            };
-            w.write("/labels", stamp, &label).unwrap();
-        }
+        let data = png(&render(seed * 1000 + k as u64, rect));
+        write_frame(&mut w, stamp, data, rect, !matches!(kind, Kind::Unlabelled));
     }
     w.finish().unwrap();
     stamps
+}
+
+/// One PNG frame at `stamp` and, when `labelled`, its label: the rectangle `rect` (x, y,
+/// width, height), or none (a background frame).
+fn write_frame(
+    w: &mut SessionWriter,
+    stamp: i64,
+    png: Vec<u8>,
+    rect: Option<(u32, u32, u32, u32)>,
+    labelled: bool,
+) {
+    let img = CompressedImage {
+        header: Header::new(stamp, "camera_optical_frame"),
+        format: "png".into(),
+        data: png,
+    };
+    w.write("/camera/image/compressed", stamp, &img).unwrap();
+    if labelled {
+        let regions = rect
+            .map(|(x, y, wd, ht)| RegionOfInterest {
+                x_offset: x,
+                y_offset: y,
+                height: ht,
+                width: wd,
+                do_rectify: false,
+            })
+            .into_iter()
+            .collect();
+        let label = ObjectLabel {
+            header: Header::new(stamp, "camera_optical_frame"),
+            object: "box".into(),
+            regions,
+        };
+        w.write("/labels", stamp, &label).unwrap();
+    }
 }
 
 fn train_session(dir: &Path) -> PathBuf {
@@ -653,28 +666,7 @@ fn a_large_captures_tiles_grow_with_its_frames() {
         image::codecs::png::PngEncoder::new(&mut png)
             .write_image(&data, side, side, image::ExtendedColorType::Rgb8)
             .unwrap();
-        let img = CompressedImage {
-            header: Header::new(stamp, "camera_optical_frame"),
-            format: "png".into(),
-            data: png,
-        };
-        w.write("/camera/image/compressed", stamp, &img).unwrap();
-        let regions = rect
-            .map(|(x, y, wd, ht)| RegionOfInterest {
-                x_offset: x,
-                y_offset: y,
-                height: ht,
-                width: wd,
-                do_rectify: false,
-            })
-            .into_iter()
-            .collect();
-        let label = ObjectLabel {
-            header: Header::new(stamp, "camera_optical_frame"),
-            object: "box".into(),
-            regions,
-        };
-        w.write("/labels", stamp, &label).unwrap();
+        write_frame(&mut w, stamp, png, rect, true);
     }
     w.finish().unwrap();
     let model = dir.path().join("m.json");
