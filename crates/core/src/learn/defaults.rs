@@ -3,7 +3,7 @@
 //! image size. Invariant: a pure function of the sessions' command counts and frame sizes and
 //! of what the user chose, so the same sessions and options train the same model.
 
-use crate::learn::dataset::{Augment, LoadedSession};
+use crate::learn::dataset::{Augment, LoadedSession, TILE_PX_RANGE};
 use crate::learn::features::FeatureSpec;
 
 /// The tile side of the paper and of every session measured so far, px.
@@ -77,7 +77,8 @@ impl TileHeadDefaults {
     pub fn of(commands_per_session: &[usize], short_side_px: u32, choice: TileHeadChoice) -> Self {
         let capture = commands_per_session.contains(&0);
         let fitted_tile = if capture {
-            (TILE_PX * short_side_px.div_ceil(CAPTURE_PX_PER_TILE_STEP).max(1)).min(128)
+            (TILE_PX * short_side_px.div_ceil(CAPTURE_PX_PER_TILE_STEP).max(1))
+                .min(*TILE_PX_RANGE.end())
         } else {
             TILE_PX
         };
