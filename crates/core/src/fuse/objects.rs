@@ -304,7 +304,11 @@ pub const MIN_RELATIVE_CELLS_INV: usize = 50;
 pub const FRAGMENT_RATIO: usize = 5;
 /// How far, in cells, beside a larger component's box a fragment's centroid may lie (see
 /// [`FRAGMENT_RATIO`]).
-pub const FRAGMENT_MARGIN_CELLS: f64 = 3.0;
+///
+/// 5 since 2026-12-04 (eleventh session; 3 before): a chair's 2 368-cell piece 4.3 cells
+/// beside its 18 335-cell body was a spurious object in a tour taken as a capture; on every
+/// robot set the final objects and grids are the same either way (docs/fuser.md, Objects).
+pub const FRAGMENT_MARGIN_CELLS: f64 = 5.0;
 
 /// Merges every component whose centroid lies inside the bounding box of a larger one into
 /// it. Objects do not nest, so such a component is a fragment cut off by the grow
@@ -643,11 +647,17 @@ mod tests {
         let objs = find_objects(&g, &ObjectParams::default());
         assert_eq!(objs.len(), 1);
         assert_eq!(objs[0].cells, 432 + 8);
-        // The same piece three cells beyond (centroid 3.5 cells out): an object of its own
-        // once it is no speck (1 x 3 x 4 = 12 cells, 12 * 50 >= 432); at 8 cells it is one.
+        // Three cells beyond (centroid 3.5 cells out, within the 5-cell margin): merged too,
+        // also when it is no speck (1 x 3 x 4 = 12 cells, 12 * 50 >= 432).
         let g = grid_with(&[chair, ([13, 4, 6], [14, 7, 10], 20.0, 6)]);
+        let objs = find_objects(&g, &ObjectParams::default());
+        assert_eq!(objs.len(), 1);
+        assert_eq!(objs[0].cells, 432 + 12);
+        // Five cells beyond (centroid 5.5 cells out): an object of its own once it is no
+        // speck; at 8 cells it is one.
+        let g = grid_with(&[chair, ([15, 4, 6], [16, 7, 10], 20.0, 6)]);
         assert_eq!(find_objects(&g, &ObjectParams::default()).len(), 2);
-        let g = grid_with(&[chair, ([13, 4, 6], [14, 6, 10], 20.0, 6)]);
+        let g = grid_with(&[chair, ([15, 4, 6], [16, 6, 10], 20.0, 6)]);
         assert_eq!(find_objects(&g, &ObjectParams::default()).len(), 1);
         // As close, but 1 x 10 x 12 = 120 cells, over a fifth of the chair: not a fragment.
         let g = grid_with(&[chair, ([11, 2, 0], [12, 12, 12], 20.0, 6)]);
