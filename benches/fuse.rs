@@ -56,7 +56,7 @@ fn chair_tour() {
     use objloc_core::fuse::replay::{FuseOptions, replay};
     use objloc_core::io::session::{SessionReader, Topics};
     use objloc_core::learn::dataset::load_session;
-    use objloc_core::learn::model::{TrainConfig, examples, fit_model};
+    use objloc_core::learn::training::{TrainConfig, examples, fit_model};
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
     let train = load_session(
         &root.join("recordings/chair-train.mcap"),
@@ -141,6 +141,24 @@ fn chair_tour() {
     );
 }
 
+/// The chair scene's training session and tour (seed 1) seen by a `w` x `h` camera, in `dir`.
+fn chair_sessions_at(
+    dir: &std::path::Path,
+    w: u32,
+    h: u32,
+) -> (std::path::PathBuf, std::path::PathBuf) {
+    use objloc_core::sim::{Kind, SimOptions, builtin_scene, record};
+    let mut scene = builtin_scene("chair").unwrap();
+    scene.camera.width = w;
+    scene.camera.height = h;
+    let [train, tour] = [(Kind::Train, "train"), (Kind::Tour, "tour")].map(|(kind, name)| {
+        let path = dir.join(format!("{name}-{w}.mcap"));
+        record(&scene, &SimOptions::new(kind, 1), &path, &mut |_, _| {}).unwrap();
+        path
+    });
+    (train, tour)
+}
+
 /// A 1080 x 1920 camera (a phone's portrait frame) on the chair scene: training on three such
 /// frames, and a frame classified and fused, default options and `--no-refine-poses`, against
 /// the shipped 256 x 240 camera's frame as the peer (the resolution's cost); medians of 3.
@@ -149,31 +167,13 @@ fn camera_resolution() {
     use objloc_core::io::session::{SessionReader, Topics};
     use objloc_core::learn::dataset::load_session;
     use objloc_core::learn::defaults::{TileHeadChoice, TileHeadDefaults};
-    use objloc_core::learn::model::{TrainConfig, examples, fit_model};
-    use objloc_core::sim::{Kind, SimOptions, builtin_scene, record};
+    use objloc_core::learn::training::{TrainConfig, examples, fit_model};
+    use objloc_core::learn::tree::ForestParams;
     let dir = std::env::temp_dir().join(format!("objloc-bench-res-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let mut per_frame = Vec::new();
     for (w, h) in [(256u32, 240u32), (1080, 1920)] {
-        let mut scene = builtin_scene("chair").unwrap();
-        scene.camera.width = w;
-        scene.camera.height = h;
-        let train = dir.join(format!("train-{w}.mcap"));
-        let tour = dir.join(format!("tour-{w}.mcap"));
-        record(
-            &scene,
-            &SimOptions::new(Kind::Train, 1),
-            &train,
-            &mut |_, _| {},
-        )
-        .unwrap();
-        record(
-            &scene,
-            &SimOptions::new(Kind::Tour, 1),
-            &tour,
-            &mut |_, _| {},
-        )
-        .unwrap();
+        let (train, tour) = chair_sessions_at(&dir, w, h);
         // Loading, features and both heads, as `objloc train` does them: with a ground
         // robot's defaults and with a posed capture's (rgb332+hs on light variants).
         let train_with = |cfg: &TrainConfig| {
@@ -202,10 +202,16 @@ fn camera_resolution() {
             augment: d.augment,
             tile_px: d.tile_px,
             train_stride_px: d.train_stride_px,
+            forest: ForestParams::with_trees(d.trees),
             ..robot_cfg.clone()
         };
         let (train_ms, model) = train_with(&robot_cfg);
         let (capture_train_ms, capture_model) = train_with(&capture_cfg);
+        // The same with the paper's single tree: what the forest costs, in the same run.
+        let (one_tree_train_ms, one_tree_model) = train_with(&TrainConfig {
+            forest: ForestParams::single(),
+            ..capture_cfg.clone()
+        });
         let reader = SessionReader::open(&tour, Topics::default()).unwrap();
         let frames = reader.count(&Topics::default().compressed_image) as f64;
         let options = FuseOptions::default();
@@ -222,14 +228,23 @@ fn camera_resolution() {
         let capture = median_ms(3, || {
             black_box(replay(&reader, &capture_model, &options, &mut []).unwrap());
         }) / frames;
+        let one_tree = median_ms(3, || {
+            black_box(replay(&reader, &one_tree_model, &options, &mut []).unwrap());
+        }) / frames;
         println!(
             "{w} x {h} camera: training on its 3 labelled views (both heads) {train_ms:.0} ms; a frame classified and fused {refined:.1} ms (default), {plain:.1} ms (--no-refine-poses)"
         );
         println!(
-            "{w} x {h} camera, a posed capture's training defaults ({} features, augment {}, tile {} px): training {capture_train_ms:.0} ms; a frame classified and fused {capture:.1} ms (default)",
+            "{w} x {h} camera, a posed capture's training defaults ({} features, augment {}, tile {} px, {} trees): training {capture_train_ms:.0} ms; a frame classified and fused {capture:.1} ms (default)",
             capture_cfg.features,
             capture_cfg.augment.name(),
-            capture_cfg.tile_px
+            capture_cfg.tile_px,
+            capture_cfg.forest.trees
+        );
+        println!(
+            "{w} x {h} camera, the same with 1 tree: training {one_tree_train_ms:.0} ms; a frame {one_tree:.1} ms; the forest {:.2}x the training, {:.2}x the frame",
+            capture_train_ms / one_tree_train_ms,
+            capture / one_tree
         );
         per_frame.push(refined);
     }

@@ -20,7 +20,7 @@ use objloc_core::fuse::replay::{
 };
 use objloc_core::io::session::{SessionReader, Topics};
 use objloc_core::learn::dataset::load_session;
-use objloc_core::learn::model::{TrainConfig, examples, fit_model};
+use objloc_core::learn::training::{TrainConfig, examples, fit_model};
 use objloc_core::sim::{Kind, SimOptions, builtin_scene, record};
 
 const EVERY_FRAMES: usize = 50;

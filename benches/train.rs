@@ -15,7 +15,7 @@ use objloc_core::io::msgs::RegionOfInterest;
 use objloc_core::io::session::Topics;
 use objloc_core::learn::dataset::{LoadedSession, SessionFrame, load_session};
 use objloc_core::learn::features::FeatureSpec;
-use objloc_core::learn::model::{TrainConfig, examples, fit_model};
+use objloc_core::learn::training::{TrainConfig, examples, fit_model};
 use objloc_core::types::image::Rgb8;
 
 const RUNS: usize = 15;

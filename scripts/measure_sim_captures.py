@@ -19,7 +19,8 @@ Usage: scripts/measure_sim_captures.py [--sets wide,mounts,foreign] [--configs d
 scripts/perturb_realdata.py does the real captures' (sessions in
 target/measure-sim-captures-perturbed).
 Configurations: default (the capture's training defaults), rgb332 (`train --features rgb332
---augment none`), extent (default training, `fuse --locate extent`).
+--augment none`), extent (default training, `fuse --locate extent`), tree (`train --trees 1`:
+the paper's single tree instead of a capture's forest).
 """
 import argparse
 import concurrent.futures as cf
@@ -48,7 +49,8 @@ HELDOUT = os.path.join(ROOT, "target", "measure-heldout")
 FOREIGN = os.environ.get("FOREIGN_DIR", os.path.join(ROOT, "..", "shared", "foreign", "sessions"))
 SCENES = ["chair", "bottle", "two-chairs", "two-bottles", "chair-bare-floor", "chair-tiled-floor"]
 CONFIGS = {"default": ([], []), "rgb332": (["--features", "rgb332", "--augment", "none"], []),
-           "extent": ([], ["--locate", "extent"])}
+           "extent": ([], ["--locate", "extent"]),
+           "tree": (["--trees", "1"], [])}
 TARGET_M = 0.12
 
 

@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use anyhow::Context;
 
 use objloc_core::learn::dataset::load_session;
-use objloc_core::learn::model::{TrainConfig, examples, fit_model};
+use objloc_core::learn::training::{TrainConfig, examples, fit_model};
 use objloc_core::out::eval::{Evaluation, evaluate, true_objects};
 
 use super::TopicArgs;

@@ -8,8 +8,9 @@ use anyhow::Context;
 use objloc_core::learn::dataset::{Augment, LoadedSession, export_features, load_session};
 use objloc_core::learn::defaults::{TILE_PX, TRAIN_STRIDE_PX, TileHeadChoice, TileHeadDefaults};
 use objloc_core::learn::features::FeatureSpec;
-use objloc_core::learn::model::{Model, RegionConfig, TrainConfig, examples, fit_model};
-use objloc_core::learn::tree::TreeParams;
+use objloc_core::learn::model::Model;
+use objloc_core::learn::training::{RegionConfig, TrainConfig, examples, fit_model};
+use objloc_core::learn::tree::{ForestParams, TreeParams};
 
 use super::TopicArgs;
 
@@ -48,6 +49,12 @@ pub struct Args {
     /// session has /cmd_vel, light otherwise (with shifted grids); the choice is printed.
     #[arg(long, value_enum)]
     augment: Option<Augment>,
+    /// Trees in the tile head, their mean its probability: 1 is the paper's tree; more are
+    /// each grown on half the training tiles, splitting on the square root of the features
+    /// drawn per node (docs/tree.md). Default: 1 when every session has /cmd_vel, 16 otherwise
+    /// (a posed capture); printed.
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=256))]
+    trees: Option<u32>,
     /// Use only labels naming this object (default: every label).
     #[arg(long)]
     object: Option<String>,
@@ -109,6 +116,7 @@ fn config(args: &Args) -> anyhow::Result<TrainConfig> {
             base_mix: args.base_mix,
             ..TreeParams::default()
         },
+        forest: ForestParams::with_trees(args.trees.unwrap_or(1)),
         region: (!args.no_region).then_some(RegionConfig {
             features: args.region_features,
             context_tiles: args.region_context_tiles,
@@ -199,7 +207,7 @@ fn log_to_rerun(args: &Args, model: &Model, sessions: &[LoadedSession]) -> anyho
     Ok(())
 }
 
-/// Sets what `--features`, `--augment`, `--tile` and `--train-stride` left open to the
+/// Sets what `--features`, `--augment`, `--tile`, `--train-stride` and `--trees` left open to the
 /// sessions' defaults ([`TileHeadDefaults`]); the line that says so, None when all were given.
 fn fit_to_sessions(
     args: &Args,
@@ -211,17 +219,20 @@ fn fit_to_sessions(
         augment: args.augment,
         tile_px: args.tile_px,
         train_stride_px: args.train_stride_px,
+        trees: args.trees,
     };
     if choice.features.is_some()
         && choice.augment.is_some()
         && choice.tile_px.is_some()
         && choice.train_stride_px.is_some()
+        && choice.trees.is_some()
     {
         return None;
     }
     let d = TileHeadDefaults::for_sessions(sessions, choice);
     (cfg.features, cfg.augment) = (d.features, d.augment);
     (cfg.tile_px, cfg.train_stride_px) = (d.tile_px, d.train_stride_px);
+    cfg.forest = ForestParams::with_trees(d.trees);
     let mut chosen = Vec::new();
     if choice.features.is_none() {
         chosen.push(format!("features {}", d.features));
@@ -234,6 +245,12 @@ fn fit_to_sessions(
     }
     if choice.train_stride_px.is_none() {
         chosen.push(format!("train stride {} px", d.train_stride_px));
+    }
+    if choice.trees.is_none() {
+        chosen.push(match d.trees {
+            1 => "1 tree".to_owned(),
+            n => format!("{n} trees"),
+        });
     }
     let mut why = if d.capture {
         format!(
@@ -250,7 +267,7 @@ fn fit_to_sessions(
         );
     }
     Some(format!(
-        "{} ({why}; --features, --augment, --tile and --train-stride set them)",
+        "{} ({why}; --features, --augment, --tile, --train-stride and --trees set them)",
         chosen.join(", ")
     ))
 }

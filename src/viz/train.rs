@@ -1,5 +1,6 @@
 //! Training in Rerun: the decision tree as a graph (split feature and threshold at inner
-//! nodes, probability and counts at leaves) and the labelled training frames with their
+//! nodes, probability and counts at leaves; a forest's first tree, its maps the forest's mean)
+//! and the labelled training frames with their
 //! rectangles and predicted tile probabilities: the tile head's (the fuser's evidence) and,
 //! when the model has one, the region head's (`predict`'s probs.npy).
 //!

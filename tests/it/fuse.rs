@@ -371,7 +371,7 @@ fn shipped_tours_meet_the_accuracy_target() {
         ));
         // A robot's training session (it has /cmd_vel) keeps the paper's channels.
         assert!(
-            out.contains("features rgb332, augment none, tile 8 px, train stride 4 px (every training session has /cmd_vel"),
+            out.contains("features rgb332, augment none, tile 8 px, train stride 4 px, 1 tree (every training session has /cmd_vel"),
             "{out}"
         );
         assert_eq!(json(&model)["features"], "rgb332");

@@ -182,18 +182,24 @@ fn train_then_predict_finds_the_box() {
     assert!(text.contains("fraction of pixels in bin"), "{text}");
 
     let m: serde_json::Value = serde_json::from_slice(&std::fs::read(&model).unwrap()).unwrap();
-    assert_eq!(m["version"], 2);
+    // A capture's tile head is a forest of 16 trees (version 3): the tree and 15 more.
+    assert_eq!(m["version"], 3);
+    assert_eq!(m["trees"].as_array().unwrap().len(), 15);
+    assert_eq!(m["metadata"]["forest"]["trees"], 16);
+    assert_eq!(m["metadata"]["forest"]["sample_fraction"], 0.5);
+    assert!(text.contains("forest of 16 trees, each grown on 50 % of the training tiles, splitting on 19 of 330 features"), "{text}");
     // The region head: hsv, the 5 x 5 tiles around, shifted grids every 2 px.
     assert_eq!(m["region"]["features"], "hsv");
     assert_eq!(m["region"]["context_tiles"], 2);
     assert_eq!(m["region"]["tree"]["n_features"], 512);
     assert_eq!(m["region"]["metadata"]["train_stride_px"], 2);
     assert!(m["region"].get("region").is_none());
+    assert!(m["region"].get("trees").is_none());
     assert!(text.contains("region head"), "{text}");
     // The session has no /cmd_vel, as a posed capture: the capture's channels and light
     // variants, said on stdout.
     assert!(
-        text.contains("features rgb332+hs, augment light, tile 8 px, train stride 4 px (a training session has no /cmd_vel"),
+        text.contains("features rgb332+hs, augment light, tile 8 px, train stride 4 px, 16 trees (a training session has no /cmd_vel"),
         "{text}"
     );
     assert_eq!(m["features"], "rgb332+hs");
@@ -321,6 +327,8 @@ fn model_is_identical_for_any_thread_count_and_stride_one_grid_has_no_shifted_ti
     }
     assert_eq!(bytes[0], bytes[1]);
     let m: serde_json::Value = serde_json::from_slice(&bytes[0]).unwrap();
+    // A capture's forest: its trees grown in parallel, the same bytes on 1 and 2 threads.
+    assert_eq!(m["trees"].as_array().unwrap().len(), 15);
     assert_eq!(m["features"], "rgb332");
     assert_eq!(m["metadata"]["seed"], 3);
     assert_eq!(m["metadata"]["examples"]["train_shifted"]["examples"], 0);
@@ -400,16 +408,41 @@ fn bad_inputs_fail_with_one_line_and_no_output() {
     // channels, which the edits below name).
     let train = train_session(dir.path());
     ok(&objloc(
-        &["train", p(&train), "-o", p(&model), "--features", "rgb332"],
+        &[
+            "train",
+            p(&train),
+            "-o",
+            p(&model),
+            "--features",
+            "rgb332",
+            "--trees",
+            "1",
+        ],
         &[],
     ));
     let text = std::fs::read_to_string(&model).unwrap();
-    for (name, from, to, expect) in [
+    let forest = dir.path().join("forest.json");
+    ok(&objloc(
+        &[
+            "train",
+            p(&train),
+            "-o",
+            p(&forest),
+            "--features",
+            "rgb332",
+            "--trees",
+            "3",
+            "--no-region",
+        ],
+        &[],
+    ));
+    let forest_text = std::fs::read_to_string(&forest).unwrap();
+    let cases = [
         (
-            "v3.json",
+            "v4.json",
             "\"version\": 2",
-            "\"version\": 3",
-            "model version 3 is not supported",
+            "\"version\": 4",
+            "model version 4 is not supported (this objloc reads versions 2 and 3)",
         ),
         (
             "feat.json",
@@ -428,7 +461,7 @@ fn bad_inputs_fail_with_one_line_and_no_output() {
             "ctx.json",
             "\"context_tiles\": 0",
             "\"context_tiles\": 1",
-            "tree has 256 features but feature spec \"rgb332\" (context 1 tiles) has 512",
+            "tree 0 has 256 features but feature spec \"rgb332\" (context 1 tiles) has 512",
         ),
         (
             // The region head's maps must line up with the tile head's.
@@ -437,9 +470,24 @@ fn bad_inputs_fail_with_one_line_and_no_output() {
             "\"features\": \"hsv\",\n    \"tile_px\": 16",
             "region head: tile size 16 px differs from the model's 8 px",
         ),
-    ] {
+        (
+            // A forest written as version 2, which an objloc before forests would have read
+            // as its first tree alone.
+            "forest-v2.json",
+            "\"version\": 3",
+            "\"version\": 2",
+            "version 2 is a single tree's, but the model holds 2 more",
+        ),
+    ];
+    for (name, from, to, expect) in cases {
+        let source = if name.starts_with("forest") {
+            &forest_text
+        } else {
+            &text
+        };
+        assert!(source.contains(from), "{name}");
         let bad = dir.path().join(name);
-        std::fs::write(&bad, text.replacen(from, to, 1)).unwrap();
+        std::fs::write(&bad, source.replacen(from, to, 1)).unwrap();
         let out_dir = dir.path().join("out");
         let out = objloc(
             &[
@@ -553,7 +601,7 @@ fn channels_and_light_augmentation_train_save_load_and_predict() {
     let line = one_line_error(&out);
     assert!(
         line.contains(
-            "tree has 376 features but feature spec \"rgb332+texture\" (context 0 tiles) has 302"
+            "tree 0 has 376 features but feature spec \"rgb332+texture\" (context 0 tiles) has 302"
         ),
         "{line}"
     );
@@ -675,8 +723,9 @@ fn a_large_captures_tiles_grow_with_its_frames() {
         &[],
     ));
     assert!(
-        text.contains("tile 16 px, train stride 8 px (a training session has no /cmd_vel")
-            && text.contains("its frames 900 px on the shorter side"),
+        text.contains(
+            "tile 16 px, train stride 8 px, 16 trees (a training session has no /cmd_vel"
+        ) && text.contains("its frames 900 px on the shorter side"),
         "{text}"
     );
     let m: serde_json::Value = serde_json::from_slice(&std::fs::read(&model).unwrap()).unwrap();

@@ -1,12 +1,14 @@
 //! The trained tile classifier as a file: versioned JSON with the feature spec, tile size,
-//! tree, the fuser's prior (`base_rate`) and how it was trained; plus per-frame prediction.
-//! A model has two heads: its own tree (the tile head, the fuser's evidence) and, nested, the
-//! region head that `predict` answers with (see [`Model::region`]).
+//! tree (or forest), the fuser's prior (`base_rate`) and how it was trained; plus per-frame
+//! prediction. A model has two heads: its own tree or forest (the tile head, the fuser's
+//! evidence) and, nested, the region head that `predict` answers with (see
+//! [`Model::region`]). Training one: [`crate::learn::training`].
 //!
-//! Invariants: a model that loads has version [`MODEL_VERSION`], a feature kind whose bin
-//! count equals the tree's feature count, a tile size in [`TILE_PX_RANGE`], a base rate
-//! strictly inside (0, 1) and a tree that passes [`Tree::validate`], so `predict` cannot
-//! panic on it; the same holds for the region head, whose tile size is the model's. Saving
+//! Invariants: a model that loads has version [`MODEL_VERSION`] (a forest) or
+//! [`MODEL_VERSION_ONE_TREE`] (one tree, no `trees`), a feature kind whose bin count equals
+//! every tree's feature count, a tile size in [`TILE_PX_RANGE`], a base rate strictly inside
+//! (0, 1) and trees that pass [`Tree::validate`], so `predict` cannot panic on it; the same
+//! holds for the region head, whose tile size is the model's. Saving
 //! goes through `write_atomic`; the JSON holds no clock value, so the same training inputs
 //! give the same bytes.
 
@@ -17,20 +19,23 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
-use crate::learn::dataset::{
-    Augment, ExampleParams, ExampleSet, LoadedSession, TILE_PX_RANGE, build_examples,
-};
+use crate::learn::dataset::{Augment, LoadedSession, TILE_PX_RANGE};
 use crate::learn::features::{
     FeatureSpec, bin_planes, for_each_tile_histogram, tile_histograms, whole_tiles, with_context,
 };
 use crate::learn::tree::{
-    Examples, FitReport, Metrics, Third, Tree, TreeError, TreeParams, fit, metrics,
+    FitReport, ForestParams, Metrics, Tree, TreeError, TreeParams, mean_probability, metrics,
 };
 use crate::types::image::Rgb8;
 use crate::types::probs::{FrameClassifier, TileProbs};
 
-/// 2: the model may carry a region head (`region`), the tree `predict` answers with.
-pub const MODEL_VERSION: u32 = 2;
+/// 3: the tile head may be a forest (`trees` beside `tree`). A model of one tree is still
+/// written as version 2, which objloc read before forests (so it reads such models as
+/// before) and which refuses a forest's file instead of reading its first tree alone.
+pub const MODEL_VERSION: u32 = 3;
+/// The version of a model whose tile head is one tree. 2: the model may carry a region head
+/// (`region`), the tree `predict` answers with.
+pub const MODEL_VERSION_ONE_TREE: u32 = 2;
 /// Largest neighbourhood radius a model may ask for (a 9 x 9 window of tiles).
 pub const MAX_CONTEXT_TILES: u32 = 4;
 
@@ -55,8 +60,8 @@ pub enum ModelError {
         #[source]
         source: serde_json::Error,
     },
-    /// The file's `version` is not [`MODEL_VERSION`].
-    #[error("{}: model version {found} is not supported (this objloc reads version {MODEL_VERSION}); retrain with `objloc train`", path.display())]
+    /// The file's `version` is neither [`MODEL_VERSION`] nor [`MODEL_VERSION_ONE_TREE`].
+    #[error("{}: model version {found} is not supported (this objloc reads versions {MODEL_VERSION_ONE_TREE} and {MODEL_VERSION}); retrain with `objloc train`", path.display())]
     Version {
         /// The model file.
         path: PathBuf,
@@ -158,10 +163,14 @@ pub struct TrainingMetadata {
     pub examples: ExampleCounts,
     /// What growth and pruning did.
     pub fit: FitReport,
-    /// The final tree on the test third.
+    /// The final tree (the forest's mean, for a forest) on the test third.
     pub test_metrics: Metrics,
-    /// The final tree on the pruning third.
+    /// The same on the pruning third.
     pub prune_metrics: Metrics,
+    /// How the forest was grown (absent: one tree, the paper's; `fit` is then its report, and
+    /// for a forest its first tree's).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub forest: Option<ForestParams>,
 }
 
 /// A trained tile classifier as saved in a model file (JSON); see the module doc.
@@ -180,6 +189,10 @@ pub struct Model {
     pub context_tiles: u32,
     /// The tile head's probability tree; it reads [`Model::n_features`] features.
     pub tree: Tree,
+    /// A forest's further trees, each reading the same features: the head's probability is
+    /// the mean of `tree`'s and theirs (empty: the paper's single tree).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub trees: Vec<Tree>,
     /// Fraction of positive training examples: the fuser's prior.
     pub base_rate: f64,
     /// How this head was trained.
@@ -219,7 +232,7 @@ impl Model {
         // of naming a missing field.
         let value: serde_json::Value = serde_json::from_slice(&bytes).map_err(json)?;
         match value.get("version").and_then(|v| v.as_u64()) {
-            Some(v) if v == MODEL_VERSION as u64 => {}
+            Some(v) if v == MODEL_VERSION as u64 || v == MODEL_VERSION_ONE_TREE as u64 => {}
             other => {
                 return Err(ModelError::Version {
                     path: path.to_owned(),
@@ -267,14 +280,22 @@ impl Model {
                 self.context_tiles
             )));
         }
-        if self.tree.n_features != self.n_features() {
+        if self.version == MODEL_VERSION_ONE_TREE && !self.trees.is_empty() {
             return Err(Ok(format!(
-                "tree has {} features but feature spec {:?} (context {} tiles) has {}",
-                self.tree.n_features,
-                self.features.name(),
-                self.context_tiles,
-                self.n_features()
+                "version {MODEL_VERSION_ONE_TREE} is a single tree's, but the model holds {} more",
+                self.trees.len()
             )));
+        }
+        for (k, tree) in std::iter::once(&self.tree).chain(&self.trees).enumerate() {
+            if tree.n_features != self.n_features() {
+                return Err(Ok(format!(
+                    "tree {k} has {} features but feature spec {:?} (context {} tiles) has {}",
+                    tree.n_features,
+                    self.features.name(),
+                    self.context_tiles,
+                    self.n_features()
+                )));
+            }
         }
         if !(self.base_rate > 0.0 && self.base_rate < 1.0) {
             return Err(Ok(format!(
@@ -282,7 +303,9 @@ impl Model {
                 self.base_rate
             )));
         }
-        self.tree.validate().map_err(Err)?;
+        for tree in std::iter::once(&self.tree).chain(&self.trees) {
+            tree.validate().map_err(Err)?;
+        }
         if let Some(region) = &self.region {
             let prefix =
                 |e: Result<String, TreeError>| e.map(|what| format!("region head: {what}"));
@@ -326,7 +349,7 @@ impl Model {
                 img.height,
                 self.features.bins(),
                 self.tile_px,
-                |h| p.push(self.tree.predict_counts(h, denom) as f32),
+                |h| p.push(self.probability(h, denom) as f32),
             );
             return TileProbs {
                 rows: whole_tiles(img.height, 0, self.tile_px),
@@ -340,7 +363,7 @@ impl Model {
             self.context_tiles,
         );
         let p = (0..h.rows * h.cols)
-            .map(|t| self.tree.predict_counts(h.tile(t), denom) as f32)
+            .map(|t| self.probability(h.tile(t), denom) as f32)
             .collect();
         TileProbs {
             rows: h.rows,
@@ -348,6 +371,12 @@ impl Model {
             tile_px: self.tile_px,
             p,
         }
+    }
+
+    /// The head's probability for a tile's feature counts (out of `denom`): its tree's, or
+    /// its forest's mean.
+    fn probability(&self, counts: &[u16], denom: f64) -> f64 {
+        mean_probability(&self.tree, &self.trees, |t| t.predict_counts(counts, denom))
     }
 
     /// Features the tree reads: the tile's histogram, then the neighbourhood's if any.
@@ -427,6 +456,16 @@ impl Model {
                 c.examples, c.positives
             );
         }
+        if let Some(forest) = &m.forest {
+            let _ = writeln!(
+                s,
+                "forest of {} trees, each grown on {:.0} % of the training tiles, splitting on {} of {} features drawn per node; probability = their mean (the first tree below, the metrics the forest's)",
+                1 + self.trees.len(),
+                100.0 * forest.sample_fraction,
+                forest.split_features_of(self.n_features()),
+                self.n_features()
+            );
+        }
         let f = &m.fit;
         let _ = writeln!(
             s,
@@ -447,7 +486,14 @@ impl Model {
         let _ = writeln!(
             s,
             "{:<26} {:>9} {:>9} {:>9}",
-            "final tree on", "accuracy", "log-loss", "ROC AUC"
+            if m.forest.is_some() {
+                "final forest on"
+            } else {
+                "final tree on"
+            },
+            "accuracy",
+            "log-loss",
+            "ROC AUC"
         );
         for (name, t) in [
             ("test third", &m.test_metrics),
@@ -684,182 +730,4 @@ impl SessionPrediction {
         }
         Ok(())
     }
-}
-
-/// How to train.
-#[derive(Debug, Clone, PartialEq)]
-pub struct TrainConfig {
-    /// The channels of the tile head's histograms.
-    pub features: FeatureSpec,
-    /// Side of a square tile, px, for both heads; must lie in [`TILE_PX_RANGE`].
-    pub tile_px: u32,
-    /// Radius in tiles of the tile head's neighbourhood histogram (0 = the tile alone); a model
-    /// loads only with at most [`MAX_CONTEXT_TILES`].
-    pub context_tiles: u32,
-    /// Shift between the tile head's extra training grids, px, in 1..=`tile_px`.
-    pub train_stride_px: u32,
-    /// Photometric variants of the shifted grids' frames, for both heads.
-    pub augment: Augment,
-    /// Seed of the stratified shuffle into thirds, for both heads.
-    pub seed: u64,
-    /// Train on the labels of this object only (None: every label).
-    pub object: Option<String>,
-    /// Tree growth and smoothing settings, for both heads.
-    pub tree: TreeParams,
-    /// How to train the region head (None: no region head; `predict` then writes the tile
-    /// head's maps).
-    pub region: Option<RegionConfig>,
-}
-
-/// What the region head's examples differ in; the tile size, seed, labels and tree options
-/// are the tile head's.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct RegionConfig {
-    /// The channels of the region head's histograms.
-    pub features: FeatureSpec,
-    /// Radius in tiles of the region head's neighbourhood histogram (0 = the tile alone).
-    pub context_tiles: u32,
-    /// Shift between the region head's extra training grids, px, in 1..=`tile_px`.
-    pub train_stride_px: u32,
-}
-
-/// hsv, the mean histogram of the 5 x 5 tiles around, shifted grids every 2 px: the best
-/// tile AUC against rectangle labels of what was measured, and the steadiest across seeds
-/// (docs/tree.md, "Tour AUC and the 0.95 target").
-impl Default for RegionConfig {
-    fn default() -> Self {
-        Self {
-            features: FeatureSpec::HSV,
-            context_tiles: 2,
-            train_stride_px: 2,
-        }
-    }
-}
-
-/// The defaults of `objloc train` for a ground robot's sessions: rgb332 features (they fuse
-/// best, docs/fuser.md), 8 px tiles, shifted grids every 4 px, seed 0, every label (a posed
-/// capture's channels and light variants: `learn::defaults`).
-impl Default for TrainConfig {
-    fn default() -> Self {
-        Self {
-            features: FeatureSpec::RGB332,
-            tile_px: 8,
-            context_tiles: 0,
-            train_stride_px: 4,
-            augment: Augment::None,
-            seed: 0,
-            object: None,
-            tree: TreeParams::default(),
-            region: Some(RegionConfig::default()),
-        }
-    }
-}
-
-impl TrainConfig {
-    /// The configuration of the region head as a head of its own (None: no region head).
-    pub fn region_config(&self) -> Option<TrainConfig> {
-        self.region.map(|r| TrainConfig {
-            features: r.features,
-            context_tiles: r.context_tiles,
-            train_stride_px: r.train_stride_px,
-            region: None,
-            ..self.clone()
-        })
-    }
-
-    /// The parameters that build this head's examples.
-    pub fn example_params(&self) -> ExampleParams {
-        ExampleParams {
-            features: self.features,
-            tile_px: self.tile_px,
-            context_tiles: self.context_tiles,
-            train_stride_px: self.train_stride_px,
-            seed: self.seed,
-            augment: self.augment,
-        }
-    }
-}
-
-/// Metrics of `tree` on the examples of `third`.
-pub fn third_metrics(tree: &Tree, ex: &Examples, third: Third) -> Metrics {
-    let idx: Vec<usize> = (0..ex.len()).filter(|&i| ex.thirds[i] == third).collect();
-    let p: Vec<f64> = idx
-        .par_iter()
-        .map(|&i| tree.predict_example(ex, i))
-        .collect();
-    let y: Vec<bool> = idx.iter().map(|&i| ex.labels[i]).collect();
-    metrics(&p, &y)
-}
-
-/// Builds the examples of `sessions` (see [`crate::learn::dataset`]).
-pub fn examples(sessions: &[LoadedSession], cfg: &TrainConfig) -> Result<ExampleSet, ModelError> {
-    let set = build_examples(sessions, &cfg.example_params())?;
-    let (n, pos) = set.examples.third_counts(Third::Train);
-    if n == 0 {
-        return Err(ModelError::NoExamples {
-            sessions: sessions.len(),
-        });
-    }
-    if pos == 0 {
-        return Err(ModelError::NoPositives {
-            examples: n,
-            tile_px: cfg.tile_px,
-        });
-    }
-    Ok(set)
-}
-
-/// Grows, stops, prunes and packages the model.
-pub fn fit_model(
-    sessions: &[LoadedSession],
-    set: &ExampleSet,
-    cfg: &TrainConfig,
-) -> Result<Model, ModelError> {
-    let ex = &set.examples;
-    let (tree, fit_report) = fit(ex, &cfg.tree).map_err(ModelError::Fit)?;
-    let count = |t: Third| {
-        let (examples, positives) = ex.third_counts(t);
-        ThirdCount {
-            examples,
-            positives,
-        }
-    };
-    let train_shifted = ThirdCount {
-        examples: ex.len() - set.aligned,
-        positives: ex.labels[set.aligned..].iter().filter(|&&y| y).count(),
-    };
-    let metadata = TrainingMetadata {
-        seed: cfg.seed,
-        sessions: sessions
-            .iter()
-            .map(|s| SessionHash {
-                path: s.path.display().to_string(),
-                sha256: s.sha256.clone(),
-            })
-            .collect(),
-        object: cfg.object.clone(),
-        train_stride_px: cfg.train_stride_px,
-        augment: cfg.augment,
-        tree_params: cfg.tree,
-        examples: ExampleCounts {
-            train: count(Third::Train),
-            train_shifted,
-            test: count(Third::Test),
-            prune: count(Third::Prune),
-            labelled_frames: set.labelled_frames,
-        },
-        test_metrics: third_metrics(&tree, ex, Third::Test),
-        prune_metrics: third_metrics(&tree, ex, Third::Prune),
-        fit: fit_report,
-    };
-    Ok(Model {
-        version: MODEL_VERSION,
-        features: cfg.features,
-        tile_px: cfg.tile_px,
-        context_tiles: cfg.context_tiles,
-        base_rate: metadata.fit.base_rate,
-        tree,
-        metadata,
-        region: None,
-    })
 }

@@ -8,6 +8,7 @@
 use std::cmp::Ordering;
 use std::collections::BinaryHeap;
 
+use super::forest::Randomise;
 use super::search::{Candidate, SplitSearch};
 use super::{Examples, FitReport, Node, Split, Third, Tree, TreeError, TreeParams};
 
@@ -127,14 +128,26 @@ impl LeafModel {
 /// every background tile below the base rate (evidence against, unlike a fixed floor) and
 /// the leaves' order (AUC unchanged).
 pub fn fit(ex: &Examples, params: &TreeParams) -> Result<(Tree, FitReport), TreeError> {
+    fit_randomised(ex, params, None)
+}
+
+/// [`fit`], with `randomise` (a forest's tree): growth sees only the training examples
+/// [`Randomise::keeps`] and each node splits on the features [`Randomise::features`] draws
+/// for it; the test and pruning thirds are whole, so every tree is stopped and pruned on the
+/// same examples as the paper's.
+pub fn fit_randomised(
+    ex: &Examples,
+    params: &TreeParams,
+    randomise: Option<&Randomise>,
+) -> Result<(Tree, FitReport), TreeError> {
     check_examples(ex)?;
-    let root = root_work(ex);
+    let root = root_work(ex, randomise);
     let (n_train, pos_train) = root.counts[Third::Train as usize];
     if n_train == 0 {
         return Err(TreeError::NoTrainingExamples);
     }
     let leaf = LeafModel::new(n_train, pos_train, params);
-    let mut growth = Growth::start(ex, root, &leaf);
+    let mut growth = Growth::start(ex, root, &leaf, randomise.copied());
     growth.run(ex, params, &leaf);
     let expansions_tried = growth.expanded.len();
     growth.cut_back();
@@ -174,11 +187,15 @@ fn check_examples(ex: &Examples) -> Result<(), TreeError> {
     Ok(())
 }
 
-/// The root's work node: every example, by third.
-fn root_work(ex: &Examples) -> Work {
+/// The root's work node: every example, by third (of the training third, those `randomise`
+/// keeps).
+fn root_work(ex: &Examples, randomise: Option<&Randomise>) -> Work {
     let mut root = Work::default();
     for i in 0..ex.len() {
         let t = ex.thirds[i] as usize;
+        if t == Third::Train as usize && randomise.is_some_and(|r| !r.keeps(i)) {
+            continue;
+        }
         root.idx[t].push(i as u32);
         root.counts[t].0 += 1;
         root.counts[t].1 += ex.labels[i] as u32;
@@ -190,6 +207,8 @@ fn root_work(ex: &Examples) -> Work {
 /// third's log-loss after each expansion.
 struct Growth {
     search: SplitSearch,
+    /// A forest tree's draws (None: the paper's tree, every feature at every node).
+    randomise: Option<Randomise>,
     nodes: Vec<Work>,
     heap: BinaryHeap<Queued>,
     /// Test-third examples (for the mean log-loss).
@@ -207,10 +226,15 @@ struct Growth {
 
 impl Growth {
     /// Growth that has the root alone, its best split queued.
-    fn start(ex: &Examples, mut root: Work, leaf: &LeafModel) -> Self {
+    fn start(
+        ex: &Examples,
+        mut root: Work,
+        leaf: &LeafModel,
+        randomise: Option<Randomise>,
+    ) -> Self {
         let mut search = SplitSearch::new(ex.n_features, ex.denom);
-        let (n_train, pos_train) = root.counts[Third::Train as usize];
-        root.best = search.best(ex, &root.idx[0], n_train, pos_train);
+        let allowed = randomise.map(|r| r.features(0, ex.n_features));
+        root.best = search.best(ex, &root.idx[0], root.counts[0], allowed.as_deref());
         let mut heap = BinaryHeap::new();
         if let Some(c) = root.best {
             heap.push(Queued {
@@ -222,6 +246,7 @@ impl Growth {
         let test_loss = leaf.loss(&root, Third::Test);
         let mut growth = Self {
             search,
+            randomise,
             nodes: vec![root],
             heap,
             n_test,
@@ -266,16 +291,20 @@ impl Growth {
         let (mut left, mut right) = partition(ex, &parent, c);
         // The training examples are needed no longer once the children are scored; the test
         // and pruning ones only as counts.
-        for w in [&mut left, &mut right] {
-            let (n, pos) = w.counts[0];
-            w.best = self.search.best(ex, &w.idx[0], n, pos);
+        let li = self.nodes.len() as u32;
+        for (k, w) in [&mut left, &mut right].into_iter().enumerate() {
+            let allowed = self
+                .randomise
+                .map(|r| r.features(li + k as u32, ex.n_features));
+            w.best = self
+                .search
+                .best(ex, &w.idx[0], w.counts[0], allowed.as_deref());
             if w.best.is_none() {
                 w.idx = Default::default();
             }
         }
         self.test_loss += leaf.loss(&left, Third::Test) + leaf.loss(&right, Third::Test)
             - leaf.loss(&self.nodes[node as usize], Third::Test);
-        let li = self.nodes.len() as u32;
         for (k, w) in [left, right].into_iter().enumerate() {
             if let Some(b) = w.best {
                 self.heap.push(Queued {

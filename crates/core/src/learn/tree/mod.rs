@@ -15,9 +15,11 @@
 //! which is what the Bayesian fuser consumes.
 //!
 //! Layout: this file holds the examples, the tree and its checks, the settings and the
-//! metrics; `search` finds a node's best split, `fit` grows, stops and prunes the tree.
+//! metrics; `search` finds a node's best split, `fit` grows, stops and prunes the tree,
+//! `forest` grows several randomised trees whose mean is the probability.
 
 mod fit;
+mod forest;
 mod search;
 
 use std::cmp::Ordering;
@@ -26,6 +28,7 @@ use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
 pub use fit::fit;
+pub use forest::{ForestParams, fit_forest, mean_probability};
 
 /// Which third of the examples an example belongs to.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize)]

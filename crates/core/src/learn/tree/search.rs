@@ -112,14 +112,13 @@ impl Scratch {
         self.nnz_pos.fill(0);
     }
 
-    /// The first best split among `features`, in (feature, threshold) order: a later
-    /// candidate replaces it only with a strictly larger gain.
+    /// The first best split among `features` (those `allowed`, when given), in (feature,
+    /// threshold) order: a later candidate replaces it only with a strictly larger gain.
     fn scan(
         &self,
         features: std::ops::Range<usize>,
-        w: usize,
-        n: u32,
-        pos: u32,
+        allowed: Option<&[bool]>,
+        (w, n, pos): (usize, u32, u32),
     ) -> Option<Candidate> {
         let parent = n_entropy(n, pos);
         let mut best: Option<Candidate> = None;
@@ -127,7 +126,7 @@ impl Scratch {
         let min_gain = 1e-9 * (n as f64).max(1.0);
         for f in features {
             let nnz = self.nnz[f];
-            if nnz == 0 {
+            if nnz == 0 || allowed.is_some_and(|a| !a[f]) {
                 continue;
             }
             let mut ln = n - nnz;
@@ -188,12 +187,15 @@ impl SplitSearch {
     /// examples, they are summed (integers: the same for any split), and each scans a range
     /// of features; the ranges' winners are taken in feature order with the same strict
     /// comparison as one scan, so the result is the same for any thread count.
+    ///
+    /// `allowed`: the features this node may split on (a forest's tree draws them per node),
+    /// None for all.
     pub(super) fn best(
         &mut self,
         ex: &Examples,
         idx: &[u32],
-        n: u32,
-        pos: u32,
+        (n, pos): (u32, u32),
+        allowed: Option<&[bool]>,
     ) -> Option<Candidate> {
         if n < 2 || pos == 0 || pos == n {
             return None;
@@ -207,7 +209,7 @@ impl SplitSearch {
         if workers == 1 {
             let s = &mut self.parts[0];
             s.add_examples(ex, idx, w);
-            let best = s.scan(0..s.nnz.len(), w, n, pos);
+            let best = s.scan(0..s.nnz.len(), allowed, (w, n, pos));
             s.reset_touched(ex, idx, w);
             return best;
         }
@@ -225,7 +227,13 @@ impl SplitSearch {
         let per = n_features.div_ceil(workers);
         let winners: Vec<Option<Candidate>> = (0..workers)
             .into_par_iter()
-            .map(|k| s.scan(k * per..((k + 1) * per).min(n_features), w, n, pos))
+            .map(|k| {
+                s.scan(
+                    k * per..((k + 1) * per).min(n_features),
+                    allowed,
+                    (w, n, pos),
+                )
+            })
             .collect();
         first[0].clear();
         winners.into_iter().flatten().fold(None, |best, c| {
