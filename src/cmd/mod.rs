@@ -30,7 +30,8 @@ enum Command {
     Inspect(inspect::Args),
     /// Record a session: from the built-in simulator, or import a real image sequence.
     Record(record::Args),
-    /// Train the tile classifier (a pruned probability decision tree) on labelled sessions.
+    /// Train the tile classifier (pruned probability decision trees: one, or a forest for a
+    /// posed capture) on labelled sessions.
     Train(train::Args),
     /// Write the classifier's per-tile probability maps for every frame of a session.
     Predict(predict::Args),

@@ -319,7 +319,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     stage.set_message("train: fitting the tile head");
     let mut t_features = t1.elapsed();
     let t2 = Instant::now();
-    let mut model = fit_model(&sessions, &set, &cfg).context("train: fitting the tree")?;
+    let mut model = fit_model(&sessions, &set, &cfg).context("train: fitting the tile head")?;
     let mut t_fit = t2.elapsed();
     if let Some(region_cfg) = cfg.region_config() {
         let t3 = Instant::now();

@@ -784,7 +784,6 @@ fn a_simulated_tour_imported_as_a_capture_finds_its_chair() {
             })
             .sum::<f64>()
             .sqrt();
-        eprintln!("{case}: {error_m:.3} m from the true centre");
         assert!(
             error_m < 0.08,
             "{case}: {error_m} m from the true centre\n{text}"

@@ -471,6 +471,12 @@ fn bad_inputs_fail_with_one_line_and_no_output() {
             "region head: tile size 16 px differs from the model's 8 px",
         ),
         (
+            "one-v3.json",
+            "\"version\": 2",
+            "\"version\": 3",
+            "version 3 is a forest's, but the model holds one tree",
+        ),
+        (
             // A forest written as version 2, which an objloc before forests would have read
             // as its first tree alone.
             "forest-v2.json",

@@ -176,7 +176,8 @@ pub struct TrainingMetadata {
 /// A trained tile classifier as saved in a model file (JSON); see the module doc.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Model {
-    /// Model file format version: [`MODEL_VERSION`] for every model that loads.
+    /// Model file format version: [`MODEL_VERSION`] for a forest, [`MODEL_VERSION_ONE_TREE`]
+    /// for one tree.
     pub version: u32,
     /// The channels of the tile histograms (`rgb332`, `hsv`, `rgb332+texture`, ...).
     pub features: FeatureSpec,
@@ -286,6 +287,18 @@ impl Model {
                 self.trees.len()
             )));
         }
+        if self.version == MODEL_VERSION && self.trees.is_empty() {
+            return Err(Ok(format!(
+                "version {MODEL_VERSION} is a forest's, but the model holds one tree"
+            )));
+        }
+        let grown = self.metadata.forest.map_or(1, |f| f.trees as usize);
+        if grown != 1 + self.trees.len() {
+            return Err(Ok(format!(
+                "the metadata says {grown} tree(s) were grown, the model holds {}",
+                1 + self.trees.len()
+            )));
+        }
         for (k, tree) in std::iter::once(&self.tree).chain(&self.trees).enumerate() {
             if tree.n_features != self.n_features() {
                 return Err(Ok(format!(
@@ -303,14 +316,25 @@ impl Model {
                 self.base_rate
             )));
         }
-        for tree in std::iter::once(&self.tree).chain(&self.trees) {
-            tree.validate().map_err(Err)?;
+        for (k, tree) in std::iter::once(&self.tree).chain(&self.trees).enumerate() {
+            tree.validate().map_err(|e| match k {
+                0 => Err(e),
+                // The forest's further trees are named by their index.
+                _ => Ok(format!("tree {k}: {e}")),
+            })?;
         }
         if let Some(region) = &self.region {
             let prefix =
                 |e: Result<String, TreeError>| e.map(|what| format!("region head: {what}"));
             if region.region.is_some() {
                 return Err(Ok("region head: has a region head of its own".to_owned()));
+            }
+            if region.version != MODEL_VERSION_ONE_TREE || !region.trees.is_empty() {
+                return Err(Ok(format!(
+                    "region head: version {} with {} tree(s); a region head is one tree, version {MODEL_VERSION_ONE_TREE}",
+                    region.version,
+                    1 + region.trees.len()
+                )));
             }
             if region.tile_px != self.tile_px {
                 return Err(Ok(format!(

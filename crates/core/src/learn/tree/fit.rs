@@ -132,8 +132,10 @@ pub fn fit(ex: &Examples, params: &TreeParams) -> Result<(Tree, FitReport), Tree
 }
 
 /// [`fit`], with `randomise` (a forest's tree): growth sees only the training examples
-/// [`Randomise::keeps`] and each node splits on the features [`Randomise::features`] draws
-/// for it; the test and pruning thirds are whole, so every tree is stopped and pruned on the
+/// [`Randomise::keeps`] (all of them if it keeps none), its leaves smooth toward their rate,
+/// and each node splits on the features [`Randomise::features`] draws for it (a draw may
+/// hold features that are constant at the node: docs/tree.md, "A forest for captures", for
+/// why); the test and pruning thirds are whole, so every tree is stopped and pruned on the
 /// same examples as the paper's.
 pub fn fit_randomised(
     ex: &Examples,
@@ -141,7 +143,11 @@ pub fn fit_randomised(
     randomise: Option<&Randomise>,
 ) -> Result<(Tree, FitReport), TreeError> {
     check_examples(ex)?;
-    let root = root_work(ex, randomise);
+    let mut root = root_work(ex, randomise);
+    if randomise.is_some() && root.counts[Third::Train as usize].0 == 0 {
+        // A tiny training third whose draw kept nothing: the tree grows on all of it.
+        root = root_work(ex, None);
+    }
     let (n_train, pos_train) = root.counts[Third::Train as usize];
     if n_train == 0 {
         return Err(TreeError::NoTrainingExamples);
@@ -232,7 +238,7 @@ impl Growth {
         leaf: &LeafModel,
         randomise: Option<Randomise>,
     ) -> Self {
-        let mut search = SplitSearch::new(ex.n_features, ex.denom);
+        let mut search = SplitSearch::new(ex.n_features, ex.denom, randomise.is_none());
         let allowed = randomise.map(|r| r.features(0, ex.n_features));
         root.best = search.best(ex, &root.idx[0], root.counts[0], allowed.as_deref());
         let mut heap = BinaryHeap::new();

@@ -159,13 +159,15 @@ impl Scratch {
 }
 
 impl SplitSearch {
-    /// Scratch for examples of `n_features` features with counts up to `denom`.
-    pub(super) fn new(n_features: usize, denom: u16) -> Self {
+    /// Scratch for examples of `n_features` features with counts up to `denom`, one set per
+    /// worker when `parallel` (a forest's trees grow in parallel instead, each with one set,
+    /// so that a forest's scratch is that of as many trees as there are threads).
+    pub(super) fn new(n_features: usize, denom: u16, parallel: bool) -> Self {
         let width = denom as usize + 1;
         // Large tiles make every histogram large (256 features x 65 026 counts for 255 px
         // tiles): one set then, as summing and clearing whole sets would cost more than the
         // chunks save.
-        let workers = if n_features * width <= 1 << 22 {
+        let workers = if parallel && n_features * width <= 1 << 22 {
             rayon::current_num_threads().clamp(1, 8)
         } else {
             1
