@@ -24,7 +24,8 @@ use crate::learn::features::{
     FeatureSpec, bin_planes, for_each_tile_histogram, tile_histograms, whole_tiles, with_context,
 };
 use crate::learn::tree::{
-    FitReport, ForestParams, Metrics, Tree, TreeError, TreeParams, mean_probability, metrics,
+    CountTree, FitReport, ForestParams, Metrics, Tree, TreeError, TreeParams, mean_probability,
+    metrics,
 };
 use crate::types::image::Rgb8;
 use crate::types::probs::{FrameClassifier, TileProbs};
@@ -364,6 +365,8 @@ impl Model {
     /// tiles dropped.
     pub fn predict(&self, img: &Rgb8) -> TileProbs {
         let denom = (self.tile_px * self.tile_px) as f64;
+        let trees = self.count_trees(denom);
+        let probability = |h: &[u16]| mean_probability(&trees[0], &trees[1..], |t| t.predict(h));
         if self.context_tiles == 0 {
             // Each tile's histogram is needed once: streamed, not kept for the frame.
             let mut p = Vec::new();
@@ -373,7 +376,7 @@ impl Model {
                 img.height,
                 self.features.bins(),
                 self.tile_px,
-                |h| p.push(self.probability(h, denom) as f32),
+                |h| p.push(probability(h) as f32),
             );
             return TileProbs {
                 rows: whole_tiles(img.height, 0, self.tile_px),
@@ -387,7 +390,7 @@ impl Model {
             self.context_tiles,
         );
         let p = (0..h.rows * h.cols)
-            .map(|t| self.probability(h.tile(t), denom) as f32)
+            .map(|t| probability(h.tile(t)) as f32)
             .collect();
         TileProbs {
             rows: h.rows,
@@ -397,10 +400,12 @@ impl Model {
         }
     }
 
-    /// The head's probability for a tile's feature counts (out of `denom`): its tree's, or
-    /// its forest's mean.
-    fn probability(&self, counts: &[u16], denom: f64) -> f64 {
-        mean_probability(&self.tree, &self.trees, |t| t.predict_counts(counts, denom))
+    /// The head's trees compiled for tile counts out of `denom`, `tree` first.
+    fn count_trees(&self, denom: f64) -> Vec<CountTree> {
+        std::iter::once(&self.tree)
+            .chain(&self.trees)
+            .map(|t| CountTree::new(t, denom))
+            .collect()
     }
 
     /// Features the tree reads: the tile's histogram, then the neighbourhood's if any.

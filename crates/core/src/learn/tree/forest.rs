@@ -160,7 +160,7 @@ pub fn fit_forest(
 
 /// The forest's probability for a tile: the mean of its trees' (`tree` first, then `more`),
 /// summed in that order.
-pub fn mean_probability(tree: &Tree, more: &[Tree], leaf_p: impl Fn(&Tree) -> f64) -> f64 {
+pub fn mean_probability<T>(tree: &T, more: &[T], leaf_p: impl Fn(&T) -> f64) -> f64 {
     if more.is_empty() {
         return leaf_p(tree);
     }

@@ -18,6 +18,7 @@
 //! metrics; `search` finds a node's best split, `fit` grows, stops and prunes the tree,
 //! `forest` grows several randomised trees whose mean is the probability.
 
+mod counts;
 mod fit;
 mod forest;
 mod search;
@@ -27,6 +28,7 @@ use std::cmp::Ordering;
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
+pub use counts::CountTree;
 pub use fit::fit;
 pub use forest::{ForestParams, fit_forest, mean_probability};
 
