@@ -167,6 +167,7 @@ fn camera_resolution() {
     use objloc_core::io::session::{SessionReader, Topics};
     use objloc_core::learn::dataset::load_session;
     use objloc_core::learn::defaults::{TileHeadChoice, TileHeadDefaults};
+    use objloc_core::learn::model::Model;
     use objloc_core::learn::training::{TrainConfig, examples, fit_model};
     use objloc_core::learn::tree::ForestParams;
     let dir = std::env::temp_dir().join(format!("objloc-bench-res-{}", std::process::id()));
@@ -219,18 +220,16 @@ fn camera_resolution() {
             refine_poses: false,
             ..options.clone()
         };
-        let refined = median_ms(3, || {
-            black_box(replay(&reader, &model, &options, &mut []).unwrap());
-        }) / frames;
-        let plain = median_ms(3, || {
-            black_box(replay(&reader, &model, &paper, &mut []).unwrap());
-        }) / frames;
-        let capture = median_ms(3, || {
-            black_box(replay(&reader, &capture_model, &options, &mut []).unwrap());
-        }) / frames;
-        let one_tree = median_ms(3, || {
-            black_box(replay(&reader, &one_tree_model, &options, &mut []).unwrap());
-        }) / frames;
+        // Median ms a frame of three replays of the tour.
+        let per_frame_ms = |model: &Model, options: &FuseOptions| {
+            median_ms(3, || {
+                black_box(replay(&reader, model, options, &mut []).unwrap());
+            }) / frames
+        };
+        let refined = per_frame_ms(&model, &options);
+        let plain = per_frame_ms(&model, &paper);
+        let capture = per_frame_ms(&capture_model, &options);
+        let one_tree = per_frame_ms(&one_tree_model, &options);
         println!(
             "{w} x {h} camera: training on its 3 labelled views (both heads) {train_ms:.0} ms; a frame classified and fused {refined:.1} ms (default), {plain:.1} ms (--no-refine-poses)"
         );

@@ -310,19 +310,17 @@ impl Model {
                     self.n_features()
                 )));
             }
+            tree.validate().map_err(|e| match k {
+                0 => Err(e),
+                // The forest's further trees are named by their index.
+                _ => Ok(format!("tree {k}: {e}")),
+            })?;
         }
         if !(self.base_rate > 0.0 && self.base_rate < 1.0) {
             return Err(Ok(format!(
                 "base rate {} is not strictly between 0 and 1",
                 self.base_rate
             )));
-        }
-        for (k, tree) in std::iter::once(&self.tree).chain(&self.trees).enumerate() {
-            tree.validate().map_err(|e| match k {
-                0 => Err(e),
-                // The forest's further trees are named by their index.
-                _ => Ok(format!("tree {k}: {e}")),
-            })?;
         }
         if let Some(region) = &self.region {
             let prefix =
