@@ -360,6 +360,7 @@ fn bad_inputs_fail_with_one_line_and_no_output() {
             "--region-stride 9 px must be 1 to the tile size 8 px",
         ),
         ("--base-mix", "1.5", "--base-mix 1.5 must be in [0, 1)"),
+        ("--trees", "0", "--trees 0 must be 1 to 256"),
         (
             "--m-estimate",
             "0",
