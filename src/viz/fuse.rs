@@ -81,12 +81,13 @@ const WORLD_FRAME: &str = "tf#/world";
 /// camera frame, the pyramids, the objects and the plots stay per frame.
 const SNAPSHOTS: usize = 50;
 /// ...and fewer for a big grid: the snapshots together summarise about this many stored
-/// cells. Grids of up to 1 M stored cells (the 200-stop tour's, the foreign rooms') keep all
-/// 50, the held-out tiled floor (2.0 M) 25; a real capture's fitted grid (6-8 M cells,
-/// 40-80 frames) gets 6-8. A snapshot there costs the replay's thread 20-35 ms (summarising
-/// every cell), more than a frame's fusion: at 100 M cells (12-16 snapshots) the milk
-/// carton's stream took 1.6x its replay, at 50 M 1.35x (docs/scale.md).
-const SNAPSHOT_CELLS: usize = 50_000_000;
+/// cells. Grids of up to 0.5 M stored cells keep all 50, a foreign room's (0.7 M) 35, the
+/// 200-stop tour's (0.9 M) 27, the held-out tiled floor (2.0 M) 12; a real capture's fitted grid
+/// (5-8 M cells, 40-80 frames) gets 3-5. A snapshot there costs the replay 20-40 ms
+/// (summarising every cell, then logging 100 000 of them), more than a frame's fusion, on a
+/// machine the replay already keeps busy: at 100 M cells (12-16 snapshots) the milk carton's
+/// stream took 1.6x its replay, at 50 M 1.35x, at 25 M 1.25-1.3x (docs/scale.md).
+const SNAPSHOT_CELLS: usize = 25_000_000;
 /// One line per refined frame: the verdict and its numbers; the rollback, when it happens.
 const VERDICT_LOG: &str = "refinement";
 /// Frames the replay may run ahead of the logging thread: enough to smooth out a snapshot
@@ -333,8 +334,11 @@ fn step_frame(image: &StepImage) -> Result<rerun::EncodedImage, VizError> {
 }
 
 /// JPEG quality of the frames in a recording: the camera image is context, not data (its
-/// pixels are in the session), and raw RGB frames made the stream 0.23 MB a frame.
-const FRAME_JPEG_QUALITY: u8 = 90;
+/// pixels are in the session), and raw RGB frames made the stream 0.23 MB a frame. Below 90
+/// `jpeg-encoder` halves the chroma both ways (4:2:0, as cameras do): a 605 x 806 phone frame
+/// encodes in 3.9 ms to 63 kB at 80, against 6.3 ms and 110 kB at 90 (4:4:4), and the
+/// encoding runs beside a replay that keeps both cores busy.
+const FRAME_JPEG_QUALITY: u8 = 80;
 
 /// A frame as a JPEG-encoded image (deterministic: the same pixels give the same bytes).
 pub(crate) fn encoded_jpeg(image: &Rgb8) -> Result<rerun::EncodedImage, VizError> {

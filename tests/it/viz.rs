@@ -356,7 +356,7 @@ fn train_recording_has_the_tree_graph_and_frames() {
     assert_training_frames_are_jpegs_of_the_session(dir.path(), &rrd);
 }
 
-/// Every training frame in the recording is a JPEG (encoded by objloc, at quality 90) that
+/// Every training frame in the recording is a JPEG (encoded by objloc, at quality 80) that
 /// `image`'s decoder turns back into one of chair-train's frames, within a few levels.
 fn assert_training_frames_are_jpegs_of_the_session(dir: &Path, rrd: &Path) {
     let blob_dir = dir.join("blobs");
@@ -384,7 +384,8 @@ fn assert_training_frames_are_jpegs_of_the_session(dir: &Path, rrd: &Path) {
             .to_rgb8();
         assert_eq!(rgb.dimensions(), (256, 240));
         // The session's frame it is closest to: mean absolute error per channel, in levels
-        // (2.2 for the first frame at quality 90; a wrong frame or broken file is far above 3).
+        // (3.2 for the first frame at quality 80 with 4:2:0 chroma, 2.2 at 90; the session's
+        // next closest frame is 25 levels off, and a broken file further).
         let mean = |want: &Vec<u8>| {
             let sum: u64 = want
                 .iter()
@@ -394,7 +395,7 @@ fn assert_training_frames_are_jpegs_of_the_session(dir: &Path, rrd: &Path) {
             sum as f64 / want.len() as f64
         };
         let best = session.iter().map(mean).fold(f64::INFINITY, f64::min);
-        assert!(best < 3.0, "{path}: mean error {best} levels");
+        assert!(best < 5.0, "{path}: mean error {best} levels");
     }
 }
 
