@@ -3,6 +3,8 @@
 //! writes the model, report and grid under `out/demo/`; then fuses the drift tour with and
 //! without pose refinement and compares the two.
 
+use super::{say, say_part};
+
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
@@ -58,7 +60,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .with_context(|| format!("creating {}", args.out.display()))?;
     let topics = args.topics.topics()?;
 
-    println!("== training on {}", train_path.display());
+    say!("== training on {}", train_path.display());
     let cfg = TrainConfig::default();
     let session = load_session(&train_path, topics.clone(), None, true)
         .with_context(|| format!("demo: reading {}", train_path.display()))?;
@@ -67,9 +69,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let model = fit_model(&sessions, &set, &cfg).context("demo: fitting the tree")?;
     let model_path = args.out.join("chair-model.json");
     model.save(&model_path).context("demo: writing the model")?;
-    print!("{}", model.summary_table());
+    say_part!("{}", model.summary_table());
 
-    println!("== fusing {}", tour_path.display());
+    say!("== fusing {}", tour_path.display());
     let report_path = args.out.join("report.json");
     let f = fuse(
         &tour_path,
@@ -85,15 +87,15 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     write_outputs(&f, Some(&report_path), Some(&grid_path))?;
 
     if let Some(e) = evaluation(&f, &report_path) {
-        println!("== against ground truth");
+        say!("== against ground truth");
         for m in &e.matches {
-            println!("{}", m.describe());
+            say!("{}", m.describe());
         }
         for n in &e.missed {
-            println!("{n}: not found");
+            say!("{n}: not found");
         }
         if !e.spurious.is_empty() {
-            println!("{} spurious object(s)", e.spurious.len());
+            say!("{} spurious object(s)", e.spurious.len());
         }
         let errs: Vec<String> = e
             .per_frame
@@ -104,22 +106,27 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                     .unwrap_or_else(|| "-".into())
             })
             .collect();
-        println!("error after each frame (m): {}", errs.join(" "));
+        say!("error after each frame (m): {}", errs.join(" "));
         if let Some(t) = &e.trajectory {
             if f.report.options.refine_poses {
-                println!(
+                say!(
                     "trajectory: /odom ATE {:.3} m over {} frames (max {:.3} m), refined {:.3} m",
-                    t.odometry_ate_m, t.frames, t.odometry_max_m, t.fused_ate_m
+                    t.odometry_ate_m,
+                    t.frames,
+                    t.odometry_max_m,
+                    t.fused_ate_m
                 );
             } else {
-                println!(
+                say!(
                     "odometry drift: ATE {:.3} m over {} frames (max {:.3} m): what limits the error above",
-                    t.odometry_ate_m, t.frames, t.odometry_max_m
+                    t.odometry_ate_m,
+                    t.frames,
+                    t.odometry_max_m
                 );
             }
         }
     }
-    println!(
+    say!(
         "wrote {}, {}, {}",
         model_path.display(),
         report_path.display(),
@@ -140,7 +147,7 @@ const DRIFT_SIGMA_W_RADPS: f64 = 0.015;
 
 /// Fuses the drift tour with odometry alone and with refined poses, and compares them.
 fn drift(args: &Args, path: &Path, model_path: &Path) -> anyhow::Result<()> {
-    println!(
+    say!(
         "== fusing {} (speed noise 5 %/3 %) with --no-refine-poses and with pose refinement",
         path.display()
     );
@@ -173,13 +180,17 @@ fn drift(args: &Args, path: &Path, model_path: &Path) -> anyhow::Result<()> {
             rows.push((name, e));
         }
     }
-    println!(
+    say!(
         "  {:<16} {:>8} {:>9} {:>10} {:>9}",
-        "poses", "objects", "max err", "odom ATE", "ATE"
+        "poses",
+        "objects",
+        "max err",
+        "odom ATE",
+        "ATE"
     );
     let metres = |x: Option<f64>| x.map(|x| format!("{x:.3} m")).unwrap_or_else(|| "-".into());
     for (name, e) in &rows {
-        println!(
+        say!(
             "  {:<16} {:>8} {:>9} {:>10} {:>9}",
             name,
             e.matches.len() + e.spurious.len(),
@@ -188,7 +199,7 @@ fn drift(args: &Args, path: &Path, model_path: &Path) -> anyhow::Result<()> {
             metres(e.trajectory.as_ref().map(|t| t.fused_ate_m)),
         );
     }
-    println!(
+    say!(
         "wrote {} and {}",
         args.out.join("drift-odometry.json").display(),
         args.out.join("drift-refined.json").display()

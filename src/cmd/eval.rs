@@ -2,6 +2,8 @@
 //! session's /ground_truth/objects, side by side; a session without ground truth is scored
 //! against its label rectangles ([`objloc_core::out::rects`]).
 
+use super::say;
+
 use std::path::PathBuf;
 
 use anyhow::{Context, bail};
@@ -102,21 +104,28 @@ pub fn read_report(path: &std::path::Path) -> anyhow::Result<Report> {
 
 fn print_evals(args: &Args, evals: &[Evaluation]) -> anyhow::Result<()> {
     if args.json {
-        println!("{}", serde_json::to_string_pretty(&evals)?);
+        say!("{}", serde_json::to_string_pretty(&evals)?);
     } else {
         for e in evals {
             print_eval(e);
         }
         if evals.len() > 1 {
-            println!("comparison:");
-            println!(
+            say!("comparison:");
+            say!(
                 "  {:<40} {:>11} {:>8} {:>7} {:>9} {:>9} {:>9} {:>9}",
-                "report", "poses", "matched", "missed", "spurious", "max err", "odom ATE", "ATE"
+                "report",
+                "poses",
+                "matched",
+                "missed",
+                "spurious",
+                "max err",
+                "odom ATE",
+                "ATE"
             );
             let metres =
                 |x: Option<f64>| x.map(|x| format!("{x:.3} m")).unwrap_or_else(|| "-".into());
             for e in evals {
-                println!(
+                say!(
                     "  {:<40} {:>11} {:>8} {:>7} {:>9} {:>9} {:>9} {:>9}",
                     e.report,
                     e.poses,
@@ -134,32 +143,38 @@ fn print_evals(args: &Args, evals: &[Evaluation]) -> anyhow::Result<()> {
 }
 
 fn print_eval(e: &Evaluation) {
-    println!("{}:", e.report);
+    say!("{}:", e.report);
     for m in &e.matches {
-        println!("  {}", m.describe());
+        say!("  {}", m.describe());
     }
     for name in &e.missed {
-        println!("  missed: {name}");
+        say!("  missed: {name}");
     }
     for c in &e.spurious {
-        println!(
+        say!(
             "  spurious object at ({:.3}, {:.3}, {:.3})",
-            c[0], c[1], c[2]
+            c[0],
+            c[1],
+            c[2]
         );
     }
-    println!("  voxel IoU of the thresholded belief: {:.3}", e.voxel_iou);
+    say!("  voxel IoU of the thresholded belief: {:.3}", e.voxel_iou);
     if let Some(t) = &e.trajectory {
-        println!(
+        say!(
             "  trajectory at {} frames: /odom ATE {:.3} m (max {:.3} m); poses fused with ({}): ATE {:.3} m",
-            t.frames, t.odometry_ate_m, t.odometry_max_m, e.poses, t.fused_ate_m
+            t.frames,
+            t.odometry_ate_m,
+            t.odometry_max_m,
+            e.poses,
+            t.fused_ate_m
         );
     }
     if let Some(why) = &e.rolled_back {
-        println!("  ROLLED BACK to /odom: {why}");
+        say!("  ROLLED BACK to /odom: {why}");
     }
-    println!("  after each frame:");
+    say!("  after each frame:");
     for f in &e.per_frame {
-        println!(
+        say!(
             "    frame {:>3}: {} object(s), {} matched, mean error {}{}",
             f.index,
             f.objects,

@@ -2,6 +2,8 @@
 //! label rectangles (triangulated centre, error as a fraction of the size, frames whose
 //! rectangle contains the located centre).
 
+use super::say;
+
 use std::collections::BTreeMap;
 
 use anyhow::Context;
@@ -89,17 +91,17 @@ pub fn run(reader: &SessionReader, args: &Args) -> anyhow::Result<()> {
             .iter()
             .map(|(r, s, auc)| serde_json::json!({"report": r, "score": s, "tile_auc": auc}))
             .collect();
-        println!("{}", serde_json::to_string_pretty(&json)?);
+        say!("{}", serde_json::to_string_pretty(&json)?);
     } else {
-        println!("{session}: no ground truth; scored against the label rectangles");
+        say!("{session}: no ground truth; scored against the label rectangles");
         for (r, s, auc) in &scores {
             print_score(r, s);
             match auc {
                 Some(a) => {
-                    println!("  tile ROC AUC of the fuser's evidence (the tile head): {a:.4}")
+                    say!("  tile ROC AUC of the fuser's evidence (the tile head): {a:.4}")
                 }
                 None => {
-                    println!("  tile ROC AUC: n/a (the report's model file is absent or changed)")
+                    say!("  tile ROC AUC: n/a (the report's model file is absent or changed)")
                 }
             }
         }
@@ -126,27 +128,33 @@ fn tile_auc(
 }
 
 fn print_score(report: &str, s: &RectScore) {
-    println!("{report}: {}", s.object);
+    say!("{report}: {}", s.object);
     match &s.triangulated {
-        Some(t) => println!(
+        Some(t) => say!(
             "  triangulated centre ({:.4}, {:.4}, {:.4}) from {} views wholly in view, ray residual rms {:.4} (max {:.4}), size {:.4} (session units)",
-            t.center[0], t.center[1], t.center[2], t.views, t.residual_rms, t.residual_max, t.size
+            t.center[0],
+            t.center[1],
+            t.center[2],
+            t.views,
+            t.residual_rms,
+            t.residual_max,
+            t.size
         ),
-        None => println!("  not triangulated: fewer than 2 frames have the object wholly in view"),
+        None => say!("  not triangulated: fewer than 2 frames have the object wholly in view"),
     }
     match (s.located, s.error, s.error_fraction) {
-        (Some(l), Some(e), Some(f)) => println!(
+        (Some(l), Some(e), Some(f)) => say!(
             "  located ({:.4}, {:.4}, {:.4}): error {e:.4} = {:.1} % of the size",
             l[0],
             l[1],
             l[2],
             f * 100.0
         ),
-        (Some(l), _, _) => println!("  located ({:.4}, {:.4}, {:.4})", l[0], l[1], l[2]),
-        _ => println!("  no object located"),
+        (Some(l), _, _) => say!("  located ({:.4}, {:.4}, {:.4})", l[0], l[1], l[2]),
+        _ => say!("  no object located"),
     }
     if let Some(f) = s.inside_fraction() {
-        println!(
+        say!(
             "  inside the rectangle in {} of {} frames ({:.1} %)",
             s.frames_inside,
             s.frames,

@@ -1,6 +1,8 @@
 //! `objloc fuse SESSION --model MODEL.json`: replay a session into the Bayesian 3D grid, print
 //! the located objects, write the report (JSON) and the grid (.npy).
 
+use super::say;
+
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -307,7 +309,7 @@ pub fn fuse(
         }
     };
     if let Some(p) = stream.finish()? {
-        println!(
+        say!(
             "rerun recording: {} (open it with: {})",
             p.display(),
             viz::open_command(&p)
@@ -343,7 +345,7 @@ pub fn write_outputs(f: &Fused, report: Option<&Path>, grid: Option<&Path>) -> a
             let e = f.report.grid.export.as_ref();
             let o = e.map_or([0.0; 3], |e| e.origin_m);
             let [i, j, k] = region.first_cell;
-            println!(
+            say!(
                 "grid {}: cells {i}..{}, {j}..{}, {k}..{} of the {} x {} x {} grid (the stored blocks), shape ({a}, {b}, {c}), min corner ({:.3}, {:.3}, {:.3}) m",
                 p.display(),
                 i + a,
@@ -401,7 +403,7 @@ pub fn print_summary(f: &Fused) {
     } else {
         " (session units)"
     };
-    println!(
+    say!(
         "fused {} of {} frames into {} x {} x {} cells of {}{m} (prior {:.5}, grid sha256 {})",
         r.frames,
         r.frames_in_session,
@@ -414,7 +416,7 @@ pub fn print_summary(f: &Fused) {
     );
     if r.grid.storage == Some(GridStorage::Sparse) {
         let g = &f.outcome.grid;
-        println!(
+        say!(
             "sparse grid: {} of {} cells stored ({:.3} %), {} MiB",
             r.grid.stored_cells,
             g.spec.cells(),
@@ -423,10 +425,10 @@ pub fn print_summary(f: &Fused) {
         );
     }
     if r.objects.is_empty() {
-        println!("no object found");
+        say!("no object found");
     }
     for (i, o) in r.objects.iter().enumerate() {
-        println!(
+        say!(
             "object {i}: at ({:.3}, {:.3}, {:.3}){m} (mass centroid ({:.3}, {:.3}, {:.3})), box ({:.2}, {:.2}, {:.2})..({:.2}, {:.2}, {:.2}), {} cells, peak p {:.4}, mean p {:.4}",
             o.centroid_m[0],
             o.centroid_m[1],
@@ -445,16 +447,21 @@ pub fn print_summary(f: &Fused) {
             o.mean_probability
         );
         if let (Some(d), Some(e)) = (&o.from_detections, &o.extent_centre_m) {
-            println!(
+            say!(
                 "  located from {} frames' detection boxes (rays {:.1} deg apart at most, rms miss {:.4}{m}); the extent's centre was ({:.3}, {:.3}, {:.3})",
-                d.rays, d.spread_deg, d.rms_miss_m, e[0], e[1], e[2]
+                d.rays,
+                d.spread_deg,
+                d.rms_miss_m,
+                e[0],
+                e[1],
+                e[2]
             );
         } else if let Some(why) = &o.not_from_detections {
-            println!("  located at the extent's centre: its detections do not triangulate: {why}");
+            say!("  located at the extent's centre: its detections do not triangulate: {why}");
         }
     }
     for c in &r.fitted {
-        println!("fitted to the session: {c}");
+        say!("fitted to the session: {c}");
     }
     if r.options.refine_poses {
         print_refinement(r);
@@ -497,14 +504,14 @@ fn print_refinement(r: &Report) {
             None => "the objects and the floor".to_owned(),
         }
     };
-    println!(
+    say!(
         "poses refined against {against}: {} of {} frames: {}; at most {max_m:.3} m and {max_deg:.1} deg from odometry",
         r.per_frame.len().saturating_sub(1),
         r.per_frame.len(),
         verdicts.join(", "),
     );
     if let Some(c) = r.refinement.as_ref() {
-        println!(
+        say!(
             "refinement check: rays meet with mean chi-square {:.2} at the refined poses, {:.2} at /odom{}",
             c.refined_rays.mean_chi2,
             c.odometry_rays.mean_chi2,
@@ -513,7 +520,7 @@ fn print_refinement(r: &Report) {
                 .unwrap_or_default()
         );
         if !c.rolled_back && !c.detections_only.is_empty() {
-            println!(
+            say!(
                 "UNVERIFIED: {} of {} frames were corrected against the detections alone (frames {}), the rays this check compares; nothing independent shows them better than /odom (compare with --no-refine-poses)",
                 c.detections_only.len(),
                 r.per_frame.len(),
@@ -521,7 +528,7 @@ fn print_refinement(r: &Report) {
             );
         }
         if c.rolled_back {
-            println!(
+            say!(
                 "ROLLED BACK to /odom: {}",
                 c.reason
                     .as_deref()
@@ -569,7 +576,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     print_summary(&f);
     write_outputs(&f, args.report.as_deref(), args.grid.as_deref())?;
     let t = &f.report.timing_ms;
-    println!(
+    say!(
         "time: load {:.1} ms, replay {:.1} ms",
         t.get("load").copied().unwrap_or(0.0),
         t.get("replay").copied().unwrap_or(0.0)

@@ -2,6 +2,8 @@
 //! full check decodes every message (in bounded memory), `--quick` reads only the summary
 //! section and says so.
 
+use super::say;
+
 use std::path::PathBuf;
 
 use anyhow::Context;
@@ -49,7 +51,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     };
     spinner.finish_and_clear();
     if args.json {
-        println!("{json}");
+        say!("{json}");
         for w in &warnings {
             eprintln!("warning: {w}");
         }

@@ -11,9 +11,47 @@ mod progress;
 mod record;
 mod train;
 
+use std::sync::atomic::{AtomicBool, Ordering};
+
 use clap::{Parser, Subcommand};
 
 use objloc_core::io::session::Topics;
+
+use crate::viz::Target;
+
+/// Whether the command's text goes to stderr instead of stdout: with `--stdout`, stdout is
+/// the Rerun recording, and one line of text in it makes the file unreadable to Rerun.
+static TEXT_TO_STDERR: AtomicBool = AtomicBool::new(false);
+
+/// Whether [`say!`] writes to stderr.
+pub(crate) fn text_to_stderr() -> bool {
+    TEXT_TO_STDERR.load(Ordering::Relaxed)
+}
+
+/// `println!` for a command's report to the user: on stdout, unless stdout carries the
+/// Rerun recording (`--stdout`), then on stderr.
+macro_rules! say {
+    ($($arg:tt)*) => {
+        if $crate::cmd::text_to_stderr() {
+            eprintln!($($arg)*)
+        } else {
+            println!($($arg)*)
+        }
+    };
+}
+pub(crate) use say;
+
+/// [`say!`] without the newline.
+macro_rules! say_part {
+    ($($arg:tt)*) => {
+        if $crate::cmd::text_to_stderr() {
+            eprint!($($arg)*)
+        } else {
+            print!($($arg)*)
+        }
+    };
+}
+pub(crate) use say_part;
 
 /// Teach a robot to find an object in 3D from camera images: record and replay ROS 2 MCAP
 /// sessions, train a tile classifier, fuse views into a Bayesian 3D grid.
@@ -62,6 +100,16 @@ impl TopicArgs {
 }
 
 pub fn main(cli: Cli) -> std::process::ExitCode {
+    let rerun = match &cli.command {
+        Command::Train(a) => Some(&a.rerun),
+        Command::Predict(a) => Some(&a.rerun),
+        Command::Fuse(a) => Some(&a.rerun),
+        Command::Demo(a) => Some(&a.rerun),
+        Command::Inspect(_) | Command::Record(_) | Command::Eval(_) => None,
+    };
+    if rerun.is_some_and(|r| r.target == Target::Stdout) {
+        TEXT_TO_STDERR.store(true, Ordering::Relaxed);
+    }
     let result = match cli.command {
         Command::Inspect(a) => inspect::run(a),
         Command::Record(a) => record::run(a),

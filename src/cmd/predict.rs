@@ -3,6 +3,8 @@
 //! (the tile head's: what `fuse` integrates), labels.npy / stamps.npy, optional heat maps, and
 //! tile ROC AUC against the session's labels when it has any.
 
+use super::say;
+
 use std::path::PathBuf;
 
 use anyhow::Context;
@@ -33,7 +35,7 @@ pub struct Args {
     #[command(flatten)]
     topics: TopicArgs,
     #[command(flatten)]
-    rerun: crate::viz::VizArgs,
+    pub(crate) rerun: crate::viz::VizArgs,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
@@ -70,14 +72,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         )?;
     }
     if let Some(p) = stream.finish()? {
-        println!(
+        say!(
             "rerun recording: {} (open it with: {})",
             p.display(),
             crate::viz::open_command(&p)
         );
     }
     let (rows, cols) = pred.maps.first().map_or((0, 0), |m| (m.rows, m.cols));
-    println!(
+    say!(
         "{} frames of {rows} x {cols} tiles written to {}",
         pred.maps.len(),
         args.out.display()
@@ -87,11 +89,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             .as_deref()
             .filter(|o| !session.label_objects.contains(*o))
         {
-            Some(o) => println!(
+            Some(o) => say!(
                 "no label names object {o:?} (the session's labels name: {}): no tile AUC",
                 super::names_or_none(&session.label_objects)
             ),
-            None => println!("no labelled frames: no tile AUC"),
+            None => say!("no labelled frames: no tile AUC"),
         }
         return Ok(());
     };
@@ -101,14 +103,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     };
     // The tile head's line first, so that the last line is always probs.npy's score.
     if model.region.is_some() {
-        println!(
+        say!(
             "tile head (tile_probs.npy, the fuser's evidence): tile ROC AUC {}, log-loss {:.5}, accuracy {:.5}",
             auc(tile),
             tile.log_loss,
             tile.accuracy
         );
     }
-    println!(
+    say!(
         "labelled frames {}: {} tiles, {} positive; tile ROC AUC {}, log-loss {:.5}, accuracy {:.5}",
         pred.labelled_frames,
         m.n,

@@ -1,6 +1,8 @@
 //! `objloc train SESSION... -o MODEL.json`: builds tile examples from labelled frames, grows
 //! and prunes the probability tree, writes the model and prints the training table.
 
+use super::{say, say_part};
+
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -95,7 +97,7 @@ pub struct Args {
     #[command(flatten)]
     topics: TopicArgs,
     #[command(flatten)]
-    rerun: crate::viz::VizArgs,
+    pub(crate) rerun: crate::viz::VizArgs,
 }
 
 /// Most trees `--trees` takes: a forest of 16 costs 1.1x one tree a frame at 1080 x 1920, and
@@ -208,7 +210,7 @@ fn log_to_rerun(args: &Args, model: &Model, sessions: &[LoadedSession]) -> anyho
         crate::viz::train::log_training_frames(&stream.rec, model, sessions)?;
     }
     if let Some(p) = stream.finish()? {
-        println!(
+        say!(
             "rerun recording: {} (open it with: {})",
             p.display(),
             crate::viz::open_command(&p)
@@ -355,11 +357,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         export_features(&set, dir).context("train: exporting features")?;
     }
     if let Some(line) = &chosen {
-        println!("{line}");
+        say!("{line}");
     }
-    print!("{}", model.summary_table());
+    say_part!("{}", model.summary_table());
     log_to_rerun(&args, &model, &sessions)?;
-    println!(
+    say!(
         "time: load+decode {:.3} s, features {:.3} s, fit time {:.4} s{}",
         t_load.as_secs_f64(),
         t_features.as_secs_f64(),
@@ -370,6 +372,6 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             ""
         }
     );
-    println!("model written to {}", args.output.display());
+    say!("model written to {}", args.output.display());
     Ok(())
 }

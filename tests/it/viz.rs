@@ -319,6 +319,58 @@ fn a_different_recording_is_not_equal() {
     );
 }
 
+/// `--stdout` gives stdout to the recording: the command's text goes to stderr, so that
+/// `objloc fuse ... --stdout | rerun -` gets an .rrd and nothing else (train printed its
+/// summary into the stream, fuse and predict appended theirs to it).
+#[test]
+fn stdout_carries_the_recording_alone() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = dir.path().join("m.json");
+    let runs: [(&str, Vec<&str>, &str); 3] = [
+        (
+            "train.rrd",
+            vec!["train", "recordings/chair-train.mcap", "-o", p(&model)],
+            "model written to",
+        ),
+        (
+            "predict.rrd",
+            vec![
+                "predict",
+                "recordings/chair-tour.mcap",
+                "--model",
+                p(&model),
+            ],
+            "tile ROC AUC",
+        ),
+        (
+            "fuse.rrd",
+            vec!["fuse", "recordings/chair-tour.mcap", "--model", p(&model)],
+            "object 0: at",
+        ),
+    ];
+    let out_dir = dir.path().join("probs");
+    let report = dir.path().join("r.json");
+    for (name, mut args, text) in runs {
+        match args[0] {
+            "predict" => args.extend(["--out", p(&out_dir)]),
+            "fuse" => args.extend(["--report", p(&report)]),
+            _ => {}
+        }
+        args.push("--stdout");
+        let out = objloc(&args, &[]);
+        ok(&out);
+        let rrd = dir.path().join(name);
+        std::fs::write(&rrd, &out.stdout).unwrap();
+        assert_eq!(&out.stdout[..4], b"RRF2", "{name}: stdout is not an .rrd");
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            stderr.contains(text),
+            "{name}: no '{text}' on stderr: {stderr}"
+        );
+        rerun_rrd("verify", &[&rrd]);
+    }
+}
+
 #[test]
 fn train_recording_has_the_tree_graph_and_frames() {
     let dir = tempfile::tempdir().unwrap();
