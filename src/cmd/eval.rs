@@ -4,13 +4,13 @@
 
 use super::say;
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
 
 use objloc_core::io::session::{IndexScope, SessionMsg, SessionReader};
 use objloc_core::out::eval::{Evaluation, evaluate, true_objects};
-use objloc_core::out::report::{REPORT_VERSION, Report};
+use objloc_core::out::report::{REPORT_VERSION, Report, file_sha256};
 
 use super::TopicArgs;
 
@@ -24,8 +24,9 @@ pub struct Args {
     /// Print the evaluations as JSON.
     #[arg(long)]
     pub json: bool,
-    /// Without ground truth: score against this object's rectangles (default: the report's
-    /// model's object, else every object on /labels).
+    /// Without ground truth: score against this object's rectangles (default: the object of
+    /// the report's model, found where the report names it or beside the report; the only
+    /// object on /labels; else every object when the model names none).
     #[arg(long)]
     pub object: Option<String>,
     /// No progress spinner (there is none anyway when stderr is not a terminal).
@@ -61,13 +62,15 @@ fn evaluate_reports(args: &Args) -> anyhow::Result<()> {
         }
     }
     let track = objloc_core::types::track::PoseTrack::new(poses);
+    let session_sha256 =
+        file_sha256(&args.session).with_context(|| format!("eval {}", args.session.display()))?;
     let Some(gt) = gt else {
-        return super::eval_rects::run(&reader, args);
+        return super::eval_rects::run(&reader, args, &session_sha256);
     };
     let truth = true_objects(&gt);
     let mut evals = Vec::new();
     for path in &args.reports {
-        let report = read_report(path)?;
+        let report = read_report_of(path, &args.session, &session_sha256)?;
         evals.push(evaluate(
             &path.display().to_string(),
             &report,
@@ -78,8 +81,29 @@ fn evaluate_reports(args: &Args) -> anyhow::Result<()> {
     print_evals(args, &evals)
 }
 
+/// A fuse report of this objloc's version fused from `session` (whose file hashes to
+/// `session_sha256`): scoring a report against another session's truth or rectangles gives
+/// numbers that mean nothing.
+pub fn read_report_of(path: &Path, session: &Path, session_sha256: &str) -> anyhow::Result<Report> {
+    let report = read_report(path)?;
+    if report.session_sha256 != session_sha256 {
+        bail!(
+            "{}: fused from another session ({}, sha256 {}...), not {} (sha256 {}...)",
+            path.display(),
+            report.session,
+            report
+                .session_sha256
+                .get(..12)
+                .unwrap_or(&report.session_sha256),
+            session.display(),
+            session_sha256.get(..12).unwrap_or(session_sha256)
+        );
+    }
+    Ok(report)
+}
+
 /// A fuse report of this objloc's version.
-pub fn read_report(path: &std::path::Path) -> anyhow::Result<Report> {
+pub fn read_report(path: &Path) -> anyhow::Result<Report> {
     {
         let text =
             std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;

@@ -5,6 +5,7 @@
 use super::say;
 
 use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 
@@ -13,8 +14,9 @@ use objloc_core::io::msgs::RegionOfInterest;
 use objloc_core::io::session::{SessionMsg, SessionReader};
 use objloc_core::learn::model::Model;
 use objloc_core::out::rects::{RectCamera, RectScore, RectView, score};
+use objloc_core::out::report::{Report, file_sha256};
 
-use super::eval::{Args, read_report};
+use super::eval::{Args, read_report_of};
 
 /// Rectangles per object: (stamp, rectangles) in session order.
 type Rects = BTreeMap<String, Vec<(i64, Vec<RegionOfInterest>)>>;
@@ -33,7 +35,7 @@ fn read_rects(reader: &SessionReader) -> anyhow::Result<Rects> {
     Ok(out)
 }
 
-pub fn run(reader: &SessionReader, args: &Args) -> anyhow::Result<()> {
+pub fn run(reader: &SessionReader, args: &Args, session_sha256: &str) -> anyhow::Result<()> {
     let session = args.session.display();
     let rects = read_rects(reader)?;
     if rects.is_empty() {
@@ -48,14 +50,16 @@ pub fn run(reader: &SessionReader, args: &Args) -> anyhow::Result<()> {
         camera: data.camera,
         distortion: data.distortion,
     };
-    let mut scores: Vec<(String, RectScore, Option<f64>)> = Vec::new();
+    // (report, score, tile AUC, objects the report located)
+    let mut scores: Vec<(String, RectScore, Option<f64>, usize)> = Vec::new();
     for path in &args.reports {
-        let report = read_report(path)?;
-        let object = args.object.clone().or_else(|| {
-            Model::load(std::path::Path::new(&report.model))
-                .ok()
-                .and_then(|m| m.metadata.object)
-        });
+        let report = read_report_of(path, &args.session, session_sha256)?;
+        let model = report_model(&report, path);
+        let object = match (&args.object, &model) {
+            (Some(o), _) => Some(o.clone()),
+            (None, Some((_, m))) => m.metadata.object.clone(),
+            (None, None) => Some(only_object(&rects, &report, path)?),
+        };
         if let Some(o) = object.as_ref().filter(|o| !rects.contains_key(*o)) {
             let names = rects.keys().cloned().collect();
             anyhow::bail!(
@@ -64,7 +68,9 @@ pub fn run(reader: &SessionReader, args: &Args) -> anyhow::Result<()> {
             );
         }
         let candidates: Vec<[f64; 3]> = report.objects.iter().map(|o| o.centroid_m).collect();
-        let auc = tile_auc(&report, args, object.as_deref());
+        let auc = model
+            .as_ref()
+            .and_then(|(_, m)| tile_auc(m, args, object.as_deref()));
         for (name, frames) in &rects {
             if object.as_ref().is_some_and(|o| o != name) {
                 continue;
@@ -81,27 +87,30 @@ pub fn run(reader: &SessionReader, args: &Args) -> anyhow::Result<()> {
                     })
                 })
                 .collect();
-            let mut s = score(name, &cam, &views, &candidates);
-            s.object = format!("{name} ({} objects located)", candidates.len());
-            scores.push((path.display().to_string(), s, auc));
+            let s = score(name, &cam, &views, &candidates);
+            scores.push((path.display().to_string(), s, auc, candidates.len()));
         }
     }
     if args.json {
         let json: Vec<_> = scores
             .iter()
-            .map(|(r, s, auc)| serde_json::json!({"report": r, "score": s, "tile_auc": auc}))
+            .map(|(r, s, auc, n)| {
+                serde_json::json!({"report": r, "score": s, "objects_located": n, "tile_auc": auc})
+            })
             .collect();
         say!("{}", serde_json::to_string_pretty(&json)?);
     } else {
         say!("{session}: no ground truth; scored against the label rectangles");
-        for (r, s, auc) in &scores {
-            print_score(r, s);
+        for (r, s, auc, n) in &scores {
+            print_score(r, s, *n);
             match auc {
                 Some(a) => {
                     say!("  tile ROC AUC of the fuser's evidence (the tile head): {a:.4}")
                 }
                 None => {
-                    say!("  tile ROC AUC: n/a (the report's model file is absent or changed)")
+                    say!(
+                        "  tile ROC AUC: n/a (the report's model file is absent or changed, here and beside the report)"
+                    )
                 }
             }
         }
@@ -109,17 +118,44 @@ pub fn run(reader: &SessionReader, args: &Args) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// The tile ROC AUC of the report's model's tile head (the fuser's evidence) against the
-/// session's rectangles of `object`; None when the model file is gone or no longer the one
-/// the report was fused with, or a class is missing.
-fn tile_auc(
-    report: &objloc_core::out::report::Report,
-    args: &Args,
-    object: Option<&str>,
-) -> Option<f64> {
-    let path = std::path::Path::new(&report.model);
-    let same = objloc_core::out::report::file_sha256(path).ok()? == report.model_sha256;
-    let model = Model::load(path).ok().filter(|_| same)?;
+/// The model the report was fused with: at the path the report names (as typed to `fuse`,
+/// so relative to where it ran), else at that path or under its file name beside the report;
+/// the first file whose SHA-256 is the report's `model_sha256`. None when none is.
+fn report_model(report: &Report, report_path: &Path) -> Option<(PathBuf, Model)> {
+    let named = Path::new(&report.model);
+    let beside = report_path.parent().unwrap_or(Path::new(""));
+    let mut candidates = vec![named.to_path_buf()];
+    if named.is_relative() {
+        candidates.push(beside.join(named));
+    }
+    if let Some(name) = named.file_name() {
+        candidates.push(beside.join(name));
+    }
+    candidates.into_iter().find_map(|c| {
+        let same = file_sha256(&c).ok()? == report.model_sha256;
+        same.then(|| Model::load(&c).ok().map(|m| (c, m)))?
+    })
+}
+
+/// The object to score a report against when its model cannot be found: the labels' only
+/// object; with several, scoring every one of them against one report's objects would
+/// report errors to objects the model never looked for.
+fn only_object(rects: &Rects, report: &Report, report_path: &Path) -> anyhow::Result<String> {
+    let mut names = rects.keys();
+    match (names.next(), names.next()) {
+        (Some(only), None) => Ok(only.clone()),
+        _ => anyhow::bail!(
+            "{}: its model {} is not there nor beside the report (or has changed), so which object it locates is unknown; pass --object NAME (the labels name: {})",
+            report_path.display(),
+            report.model,
+            super::names_or_none(&rects.keys().cloned().collect())
+        ),
+    }
+}
+
+/// The tile ROC AUC of `model`'s tile head (the fuser's evidence) against the session's
+/// rectangles of `object`; None when a class is missing.
+fn tile_auc(model: &Model, args: &Args, object: Option<&str>) -> Option<f64> {
     let topics = args.topics.topics().ok()?;
     let session =
         objloc_core::learn::dataset::load_session(&args.session, topics, object, true).ok()?;
@@ -127,8 +163,8 @@ fn tile_auc(
     pred.tile_labelled?.roc_auc
 }
 
-fn print_score(report: &str, s: &RectScore) {
-    say!("{report}: {}", s.object);
+fn print_score(report: &str, s: &RectScore, located: usize) {
+    say!("{report}: {} ({located} objects located)", s.object);
     match &s.triangulated {
         Some(t) => say!(
             "  triangulated centre ({:.4}, {:.4}, {:.4}) from {} views wholly in view, ray residual rms {:.4} (max {:.4}), size {:.4} (session units)",

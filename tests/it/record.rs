@@ -402,6 +402,55 @@ fn image_dir(dir: &Path, images: &[(&str, u32, u32, [u8; 3])]) -> PathBuf {
     rgb
 }
 
+/// `inspect` counts frames, as `record import` does: two objects boxed in one frame are one
+/// labelled frame (it counted the two label messages), a frame with only empty labels a
+/// background frame.
+#[test]
+fn inspect_counts_labelled_frames_not_label_messages() {
+    let dir = tempfile::tempdir().unwrap();
+    let images = image_dir(
+        dir.path(),
+        &[
+            ("100.50.png", 32, 24, [200, 20, 20]),
+            ("101.00.png", 32, 24, [20, 200, 20]),
+        ],
+    );
+    let traj = dir.path().join("traj.txt");
+    std::fs::write(&traj, "100.0 0 0 0 0 0 0 1\n101.0 2 0 0 0 0 0 1\n").unwrap();
+    let labels = dir.path().join("labels.csv");
+    std::fs::write(
+        &labels,
+        "image,x,y,width,height,object\n100.50.png,4,5,10,8,cup\n100.50.png,16,5,8,8,plate\n101.00.png,,,,,cup\n",
+    )
+    .unwrap();
+    let out = dir.path().join("two.mcap");
+    let run = objloc(
+        &[
+            "record",
+            "import",
+            "--images",
+            p(&images),
+            "--trajectory",
+            p(&traj),
+            "--camera",
+            "30,31,16,12",
+            "--labels",
+            p(&labels),
+            "-o",
+            p(&out),
+        ],
+        &[],
+    );
+    ok(&run);
+    let said = String::from_utf8_lossy(&run.stderr);
+    assert!(said.contains("2 frames, 2 labelled"), "{said}");
+    let j: serde_json::Value =
+        serde_json::from_str(&ok(&objloc(&["inspect", "--json", p(&out)], &[]))).unwrap();
+    assert_eq!(j["labelled_frames"], 1, "{j}");
+    assert_eq!(j["background_frames"], 1, "{j}");
+    assert_eq!(j["objects_labelled"], serde_json::json!(["cup", "plate"]));
+}
+
 #[test]
 fn import_tum_sequence_with_labels() {
     let dir = tempfile::tempdir().unwrap();
@@ -796,5 +845,38 @@ fn a_simulated_tour_imported_as_a_capture_finds_its_chair() {
             ev.contains("inside the rectangle in 8 of 8 frames"),
             "{case}: {ev}"
         );
+        if case == "shipped" {
+            eval_finds_the_model_beside_the_report(dir.path(), &tour_capture, &report, &model);
+            let wrong = objloc(&["eval", p(&train_capture), "--report", p(&report)], &[]);
+            assert!(
+                one_line_error(&wrong).contains("fused from another session"),
+                "{case}"
+            );
+        }
     }
+}
+
+/// `eval` finds the report's model where the report names it or, moved with the report,
+/// beside it (the report holds the path as typed to `fuse`, relative to where that ran);
+/// without it, it scores the labels' only object and says the AUC cannot be had.
+fn eval_finds_the_model_beside_the_report(dir: &Path, tour: &Path, report: &Path, model: &Path) {
+    let moved = dir.join("moved");
+    std::fs::create_dir_all(&moved).unwrap();
+    let moved_report = moved.join("r.json");
+    std::fs::copy(report, &moved_report).unwrap();
+    let moved_model = moved.join(model.file_name().unwrap());
+    std::fs::rename(model, &moved_model).unwrap();
+    let ev = ok(&objloc(
+        &["eval", p(tour), "--report", p(&moved_report)],
+        &[],
+    ));
+    assert!(ev.contains("inside the rectangle in 8 of 8 frames"), "{ev}");
+    assert!(ev.contains("tile ROC AUC of the fuser's evidence"), "{ev}");
+    std::fs::remove_file(&moved_model).unwrap();
+    let ev = ok(&objloc(
+        &["eval", p(tour), "--report", p(&moved_report)],
+        &[],
+    ));
+    assert!(ev.contains("inside the rectangle in 8 of 8 frames"), "{ev}");
+    assert!(ev.contains("tile ROC AUC: n/a"), "{ev}");
 }

@@ -82,9 +82,10 @@ pub struct Summary {
     pub image: Option<ImageSummary>,
     /// Pinhole intrinsics from the first CameraInfo; `None` if absent or not a valid pinhole.
     pub intrinsics: Option<Camera>,
-    /// Label messages with at least one region (one message per object and frame).
+    /// Frames (label stamps) with at least one region, of any object: two objects boxed in
+    /// one frame count once, as `record import` counts them.
     pub labelled_frames: usize,
-    /// Label messages with no region: frames marked as not showing their object.
+    /// Frames whose labels have no region: marked as showing none of their objects.
     pub background_frames: usize,
     /// Objects boxed in at least one label, sorted, each once.
     pub objects_labelled: Vec<String>,
@@ -143,8 +144,8 @@ pub fn summarize_reader(reader: &SessionReader) -> Result<Summary, SessionError>
         },
         topics: topic_rows(reader),
         frames: scan.frame_stamps.len(),
-        labelled_frames: scan.labels.iter().filter(|l| l.labelled).count(),
-        background_frames: scan.labels.iter().filter(|l| !l.labelled).count(),
+        labelled_frames: scan.labelled_stamps().len(),
+        background_frames: scan.background_stamps().len(),
         missing_topics: missing_topics(topics, |t| reader.count(t), !scan.frame_stamps.is_empty()),
         image: scan.image,
         intrinsics: scan.intrinsics,
@@ -200,6 +201,27 @@ struct LabelSeen {
     /// It boxes the object (otherwise it marks a background frame).
     labelled: bool,
     object: String,
+}
+
+impl Scan {
+    /// Stamps of frames with a region of any object, each once.
+    fn labelled_stamps(&self) -> std::collections::BTreeSet<i64> {
+        self.labels
+            .iter()
+            .filter(|l| l.labelled)
+            .map(|l| l.stamp_ns)
+            .collect()
+    }
+
+    /// Stamps of frames whose labels all have no region, each once.
+    fn background_stamps(&self) -> std::collections::BTreeSet<i64> {
+        let labelled = self.labelled_stamps();
+        self.labels
+            .iter()
+            .map(|l| l.stamp_ns)
+            .filter(|t| !labelled.contains(t))
+            .collect()
+    }
 }
 
 /// What one pass over the session-role messages found.
