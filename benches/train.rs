@@ -83,6 +83,7 @@ fn synthetic() -> LoadedSession {
         frames,
         label_objects: ["object".to_owned()].into(),
         commands: 0,
+        warnings: Vec::new(),
     }
 }
 

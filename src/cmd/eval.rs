@@ -48,6 +48,9 @@ fn evaluate_reports(args: &Args) -> anyhow::Result<()> {
     let reader =
         SessionReader::open_scoped(&args.session, args.topics.topics()?, IndexScope::Roles)
             .with_context(|| format!("eval {}", args.session.display()))?;
+    for w in &reader.warnings {
+        eprintln!("warning: {w}");
+    }
     let mut gt = None;
     let mut poses = Vec::new();
     for m in reader.messages() {

@@ -82,8 +82,9 @@ pub struct FuseArgs {
     pub poses: PoseSource,
     /// Localise each frame against the objects and the floor seen so far before fusing it,
     /// searching around the odometry prediction under the motion model (--sigma-v/--sigma-w:
-    /// set them to your robot's speed noise). The default; accepted for scripts that ask for
-    /// it. See docs/fuser.md.
+    /// set them to your robot's speed noise). The default for a ground robot's session (with
+    /// /cmd_vel); a session without commands (a hand-held or arm camera) is refined only when
+    /// asked with this flag. See docs/fuser.md.
     #[arg(long, overrides_with = "no_refine_poses")]
     pub refine_poses: bool,
     /// Fuse every frame at its /odom pose, as the paper does (no pose refinement).
@@ -248,11 +249,12 @@ pub fn fuse(
     default_rrd: &Path,
 ) -> anyhow::Result<Fused> {
     // Checked before any file is read: a contradiction in the flags, not in the inputs.
-    if args.refine_poses && args.sigma_v <= 0.0 && args.sigma_w <= 0.0 {
-        anyhow::bail!(
-            "--refine-poses searches under the motion model, and --sigma-v 0 --sigma-w 0 declare odometry exact: give a speed noise above 0, or drop --refine-poses"
-        );
-    }
+    super::usage_check(
+        !(args.refine_poses && args.sigma_v <= 0.0 && args.sigma_w <= 0.0),
+        || {
+            "--refine-poses searches under the motion model, and --sigma-v 0 --sigma-w 0 declare odometry exact: give a speed noise above 0, or drop --refine-poses".into()
+        },
+    )?;
     let t0 = Instant::now();
     let model = Model::load(model_path).context("loading the model")?;
     let reader = SessionReader::open_scoped(session, topics.topics()?, IndexScope::Roles)

@@ -99,6 +99,29 @@ impl TopicArgs {
     }
 }
 
+/// A command line that parsed but cannot be run as asked: a flag's value out of its range,
+/// or a flag without the one it qualifies. It exits 2, as clap's own usage errors do, so that
+/// every mistake in the command line (not in the files it names) has the same exit code.
+#[derive(Debug)]
+pub(crate) struct UsageError(pub String);
+
+impl std::fmt::Display for UsageError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for UsageError {}
+
+/// `Err(UsageError(message()))` unless `ok`.
+pub(crate) fn usage_check(ok: bool, message: impl FnOnce() -> String) -> anyhow::Result<()> {
+    if ok {
+        Ok(())
+    } else {
+        Err(UsageError(message()).into())
+    }
+}
+
 pub fn main(cli: Cli) -> std::process::ExitCode {
     let rerun = match &cli.command {
         Command::Train(a) => Some(&a.rerun),
@@ -135,7 +158,8 @@ pub fn main(cli: Cli) -> std::process::ExitCode {
                 }
             }
             eprintln!("error: {line}");
-            std::process::ExitCode::from(1)
+            let usage = e.chain().any(|c| c.downcast_ref::<UsageError>().is_some());
+            std::process::ExitCode::from(if usage { 2 } else { 1 })
         }
     }
 }

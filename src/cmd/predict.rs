@@ -41,9 +41,22 @@ pub struct Args {
 pub fn run(args: Args) -> anyhow::Result<()> {
     let topics = args.topics.topics()?;
     let model = Model::load(&args.model).context("predict: loading the model")?;
+    let asked = args.object.clone();
     let object = args.object.or_else(|| model.metadata.object.clone());
     let session = load_session(&args.session, topics, object.as_deref(), false)
         .context("predict: reading the session")?;
+    for w in &session.warnings {
+        eprintln!("warning: {w}");
+    }
+    // An object asked for by name that no label names is a mistake, as in train and eval
+    // (one the model names is not: its maps are still wanted, without a score).
+    if let Some(o) = asked.filter(|o| !session.label_objects.contains(o)) {
+        anyhow::bail!(
+            "predict: no label in {} names object {o:?}; the labels name: {}",
+            args.session.display(),
+            super::names_or_none(&session.label_objects)
+        );
+    }
     let heads = if model.region.is_some() { 2 } else { 1 };
     let bar = super::progress::frames_bar("predict", args.quiet);
     bar.set_length((session.frames.len() * heads) as u64);

@@ -3,6 +3,7 @@
 
 use std::path::PathBuf;
 
+use super::{UsageError, usage_check};
 use anyhow::Context;
 use indicatif::ProgressBar;
 
@@ -133,20 +134,21 @@ struct ImportArgs {
 
 /// The pose source the options name (clap has checked that exactly one is given).
 fn pose_file(a: &ImportArgs) -> anyhow::Result<PoseFile> {
+    check_qualifiers(a)?;
     let images = || {
         a.images
             .clone()
-            .ok_or_else(|| anyhow::anyhow!("give --images DIR"))
+            .ok_or_else(|| UsageError("give --images DIR".into()))
     };
     Ok(if let Some(trajectory) = &a.trajectory {
         let camera = a
             .camera
             .as_deref()
-            .ok_or_else(|| anyhow::anyhow!("--trajectory needs --camera FX,FY,CX,CY"))?;
+            .ok_or_else(|| UsageError("--trajectory needs --camera FX,FY,CX,CY".into()))?;
         PoseFile::Tum {
             trajectory: trajectory.clone(),
             images: images()?,
-            camera: floats::<4>(camera, "--camera")?,
+            camera: camera_flag(camera)?,
             distortion: match &a.distortion {
                 Some(d) => distortion(d)?,
                 None => Distortion::default(),
@@ -170,15 +172,59 @@ fn pose_file(a: &ImportArgs) -> anyhow::Result<PoseFile> {
         PoseFile::Idr {
             cameras: cameras.clone(),
             images: images()?,
-            crop: a
-                .crop
-                .as_deref()
-                .map(|c| floats::<4>(c, "--crop"))
-                .transpose()?,
+            crop: a.crop.as_deref().map(crop_flag).transpose()?,
         }
     } else {
-        anyhow::bail!("give one of --trajectory, --nerf, --colmap, --llff, --idr");
+        return Err(
+            UsageError("give one of --trajectory, --nerf, --colmap, --llff, --idr".into()).into(),
+        );
     })
+}
+
+/// The flags that qualify one pose source, refused with any other: clap's `requires` lets
+/// them through when another member of the pose-file group is given, and they were then
+/// silently ignored.
+fn check_qualifiers(a: &ImportArgs) -> anyhow::Result<()> {
+    let given: [(&str, bool, bool); 4] = [
+        ("--camera", a.camera.is_some(), a.trajectory.is_some()),
+        (
+            "--distortion",
+            a.distortion.is_some(),
+            a.trajectory.is_some(),
+        ),
+        ("--crop", a.crop.is_some(), a.idr.is_some()),
+        ("--images", a.images.is_some(), a.nerf.is_none()),
+    ];
+    for (flag, present, allowed) in given {
+        usage_check(!present || allowed, || {
+            match flag {
+            "--images" => "--images is not for --nerf: transforms.json names each image, relative to itself".into(),
+            "--crop" => "--crop is only for --idr: the other pose files give the intrinsics of the images as they are".into(),
+            _ => format!("{flag} is only for --trajectory: the other pose files carry the camera's intrinsics and lens"),
+        }
+        })?;
+    }
+    Ok(())
+}
+
+/// `--camera FX,FY,CX,CY`: positive focal lengths, a finite principal point.
+fn camera_flag(s: &str) -> anyhow::Result<[f64; 4]> {
+    let v = floats::<4>(s, "--camera")?;
+    usage_check(
+        v[0] > 0.0 && v[1] > 0.0 && v.iter().all(|x| x.is_finite()),
+        || format!("--camera {s:?}: FX and FY must be positive, CX and CY finite (pixels)"),
+    )?;
+    Ok(v)
+}
+
+/// `--crop X,Y,W,H`: a region of positive size at non-negative offsets.
+fn crop_flag(s: &str) -> anyhow::Result<[f64; 4]> {
+    let v = floats::<4>(s, "--crop")?;
+    usage_check(
+        v[0] >= 0.0 && v[1] >= 0.0 && v[2] > 0.0 && v[3] > 0.0 && v.iter().all(|x| x.is_finite()),
+        || format!("--crop {s:?}: X and Y must be 0 or more, W and H positive (pixels)"),
+    )?;
+    Ok(v)
 }
 
 /// `K1,K2,P1,P2[,K3]` as a distortion.
@@ -187,7 +233,7 @@ fn distortion(s: &str) -> anyhow::Result<Distortion> {
         Ok(v) => v,
         Err(_) => {
             let [k1, k2, p1, p2] = floats::<4>(s, "--distortion")
-                .map_err(|_| anyhow::anyhow!("--distortion {s:?} is not K1,K2,P1,P2[,K3]"))?;
+                .map_err(|_| UsageError(format!("--distortion {s:?} is not K1,K2,P1,P2[,K3]")))?;
             [k1, k2, p1, p2, 0.0]
         }
     };
@@ -195,13 +241,13 @@ fn distortion(s: &str) -> anyhow::Result<Distortion> {
 }
 
 fn floats<const N: usize>(s: &str, what: &str) -> anyhow::Result<[f64; N]> {
+    let bad = || UsageError(format!("{what} {s:?} is not {N} comma-separated numbers"));
     let v: Vec<f64> = s
         .split(',')
         .map(|x| x.trim().parse::<f64>())
         .collect::<Result<_, _>>()
-        .with_context(|| format!("{what} {s:?} is not {N} comma-separated numbers"))?;
-    v.try_into()
-        .map_err(|_| anyhow::anyhow!("{what} {s:?} is not {N} comma-separated numbers"))
+        .map_err(|_| bad())?;
+    Ok(v.try_into().map_err(|_| bad())?)
 }
 
 fn progress_bar(quiet: bool) -> ProgressBar {

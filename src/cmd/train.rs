@@ -1,13 +1,15 @@
 //! `objloc train SESSION... -o MODEL.json`: builds tile examples from labelled frames, grows
 //! and prunes the probability tree, writes the model and prints the training table.
 
-use super::{say, say_part};
+use super::{say, say_part, usage_check};
 
 use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::Context;
-use objloc_core::learn::dataset::{Augment, LoadedSession, export_features, load_session};
+use objloc_core::learn::dataset::{
+    Augment, LoadedSession, TILE_PX_RANGE, export_features, load_session,
+};
 use objloc_core::learn::defaults::{TILE_PX, TRAIN_STRIDE_PX, TileHeadChoice, TileHeadDefaults};
 use objloc_core::learn::features::FeatureSpec;
 use objloc_core::learn::model::Model;
@@ -130,64 +132,80 @@ fn config(args: &Args) -> anyhow::Result<TrainConfig> {
         }),
     };
     if let Some(n) = args.trees {
-        anyhow::ensure!(
-            (1..=MAX_TREES).contains(&n),
-            "--trees {n} must be 1 to {MAX_TREES}"
-        );
+        usage_check((1..=MAX_TREES).contains(&n), || {
+            format!("--trees {n} must be 1 to {MAX_TREES}")
+        })?;
     }
-    anyhow::ensure!(
+    usage_check(
         cfg.tree.m_estimate.is_finite() && cfg.tree.m_estimate > 0.0,
-        "--m-estimate {} must be a positive number",
-        cfg.tree.m_estimate
-    );
-    anyhow::ensure!(
-        cfg.context_tiles <= objloc_core::learn::model::MAX_CONTEXT_TILES,
-        "--context-tiles {} is over {}",
-        cfg.context_tiles,
-        objloc_core::learn::model::MAX_CONTEXT_TILES
-    );
+        || {
+            format!(
+                "--m-estimate {} must be a positive number",
+                cfg.tree.m_estimate
+            )
+        },
+    )?;
+    let max_context = objloc_core::learn::model::MAX_CONTEXT_TILES;
+    usage_check(cfg.context_tiles <= max_context, || {
+        format!(
+            "--context-tiles {} is over {max_context}",
+            cfg.context_tiles
+        )
+    })?;
     if let Some(r) = &cfg.region {
-        anyhow::ensure!(
-            (1..=objloc_core::learn::model::MAX_CONTEXT_TILES).contains(&r.context_tiles),
-            "--region-context-tiles {} must be in 1..={}",
-            r.context_tiles,
-            objloc_core::learn::model::MAX_CONTEXT_TILES
-        );
+        usage_check((1..=max_context).contains(&r.context_tiles), || {
+            format!(
+                "--region-context-tiles {} must be in 1..={max_context}",
+                r.context_tiles
+            )
+        })?;
     }
     // Before any work, at the tile asked for or 8 px; a tile the sessions fit is never
     // smaller, so what passes here passes there too (checked again after fitting).
     check_tiles(&cfg)?;
-    anyhow::ensure!(
+    usage_check(
         cfg.tree.prune_pseudo.is_finite() && cfg.tree.prune_pseudo >= 0.0,
-        "--prune-pseudo {} must be a number >= 0",
-        cfg.tree.prune_pseudo
-    );
-    anyhow::ensure!(
-        (0.0..1.0).contains(&cfg.tree.base_mix),
-        "--base-mix {} must be in [0, 1)",
-        cfg.tree.base_mix
-    );
+        || {
+            format!(
+                "--prune-pseudo {} must be a number >= 0",
+                cfg.tree.prune_pseudo
+            )
+        },
+    )?;
+    usage_check((0.0..1.0).contains(&cfg.tree.base_mix), || {
+        format!("--base-mix {} must be in [0, 1)", cfg.tree.base_mix)
+    })?;
     Ok(cfg)
 }
 
 /// The options that depend on the tile side, checked before the tile head is trained.
 fn check_tiles(cfg: &TrainConfig) -> anyhow::Result<()> {
+    usage_check(TILE_PX_RANGE.contains(&cfg.tile_px), || {
+        format!(
+            "--tile {} px is outside {}..={} px",
+            cfg.tile_px,
+            TILE_PX_RANGE.start(),
+            TILE_PX_RANGE.end()
+        )
+    })?;
     if let Some(r) = &cfg.region {
-        anyhow::ensure!(
-            (1..=cfg.tile_px).contains(&r.train_stride_px),
-            "--region-stride {} px must be 1 to the tile size {} px",
-            r.train_stride_px,
-            cfg.tile_px
-        );
+        usage_check((1..=cfg.tile_px).contains(&r.train_stride_px), || {
+            format!(
+                "--region-stride {} px must be 1 to the tile size {} px",
+                r.train_stride_px, cfg.tile_px
+            )
+        })?;
     }
     // Light variants are cut for the shifted grids only: without them it would do nothing.
-    anyhow::ensure!(
+    usage_check(
         cfg.augment == Augment::None || cfg.train_stride_px < cfg.tile_px,
-        "--augment light varies the shifted training grids, and --train-stride {} px at tile {} px makes none; use a stride below the tile size",
-        cfg.train_stride_px,
-        cfg.tile_px
-    );
-    Ok(())
+        || {
+            format!(
+                "--augment light varies the shifted training grids, and --train-stride {} px at tile {} px makes none; use a stride below the tile size",
+                cfg.train_stride_px, cfg.tile_px
+            )
+        },
+    )
 }
 
 /// The tree as a graph and the training frames with their maps, in Rerun (by default beside
@@ -296,6 +314,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .map(|p| load_session(p, topics.clone(), args.object.as_deref(), true))
         .collect::<Result<Vec<_>, _>>()
         .context("train: reading sessions")?;
+    for w in sessions.iter().flat_map(|s| &s.warnings) {
+        eprintln!("warning: {w}");
+    }
     if let Some(o) = &args.object
         && !sessions.iter().any(|s| s.label_objects.contains(o))
     {

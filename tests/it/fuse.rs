@@ -8,7 +8,7 @@
 use serde_json::Value;
 
 use crate::common::pyenv::py_json;
-use crate::common::{json, objloc, ok, one_line_error, p, repo_dir, train};
+use crate::common::{json, objloc, ok, one_line_error, p, repo_dir, train, usage_error};
 
 #[test]
 fn demo_locates_the_chair_and_writes_its_outputs() {
@@ -486,7 +486,7 @@ fn fuse_refuses_bad_input_with_one_line_errors_and_no_outputs() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("--no-refine-poses"), "{err}");
     // Refinement searches under the motion model; sigmas of 0 leave it nothing to search.
-    let line = one_line_error(&fuse(&[
+    let line = usage_error(&fuse(&[
         "--model",
         p(&model),
         "--refine-poses",

@@ -13,7 +13,7 @@ use objloc_core::io::msgs::iso_from_pose;
 use objloc_core::io::session::{SessionMsg, SessionReader, Topics};
 use objloc_core::types::geometry::{Camera, iso_from_parts};
 
-use crate::common::{objloc, ok, one_line_error, p, repo_dir};
+use crate::common::{objloc, ok, one_line_error, p, repo_dir, usage_error};
 
 /// The `objloc record sim ...` lines of recordings/README.md, as (output file name, args).
 fn readme_commands() -> Vec<(String, Vec<String>)> {
@@ -529,6 +529,60 @@ fn import_tum_sequence_with_labels() {
         line.contains("no label in") && line.contains("names object \"mug\"; the labels name: cup"),
         "{line}"
     );
+    // Mistakes in the import's flags are usage errors (exit 2), before any file is read: a
+    // flag of another pose source (it was ignored), a camera or crop that is not one.
+    let images = p(&images);
+    let traj = p(&traj);
+    let o = p(&out);
+    let cases: [(&[&str], &str); 5] = [
+        (
+            &[
+                "--llff",
+                "p.npy",
+                "--images",
+                images,
+                "--camera",
+                "30,31,16,12",
+            ],
+            "--camera is only for --trajectory",
+        ),
+        (
+            &["--llff", "p.npy", "--images", images, "--crop", "0,0,8,8"],
+            "--crop is only for --idr",
+        ),
+        (
+            &["--nerf", "t.json", "--images", images],
+            "--images is not for --nerf",
+        ),
+        (
+            &[
+                "--idr",
+                "c.npz",
+                "--images",
+                images,
+                "--crop",
+                "200,0,0,1200",
+            ],
+            "--crop \"200,0,0,1200\": X and Y must be 0 or more, W and H positive",
+        ),
+        (
+            &[
+                "--images",
+                images,
+                "--trajectory",
+                traj,
+                "--camera",
+                "0,31,16,12",
+            ],
+            "FX and FY must be positive",
+        ),
+    ];
+    for (flags, says) in cases {
+        let mut args = vec!["record", "import", "-o", o];
+        args.extend_from_slice(flags);
+        let line = usage_error(&objloc(&args, &[]));
+        assert!(line.contains(says), "{flags:?}: {line}");
+    }
 }
 
 /// Imports 8 x 8 images `names` (image k red (k + 1) * 20) against the TUM trajectory

@@ -11,7 +11,7 @@ use objloc_core::io::msgs::{CompressedImage, Header, ObjectLabel, RegionOfIntere
 use objloc_core::io::session::SessionWriter;
 
 use crate::common::pyenv::sha256_hex;
-use crate::common::{objloc, ok, one_line_error, p, repo_dir};
+use crate::common::{objloc, ok, one_line_error, p, repo_dir, usage_error};
 
 const W: u32 = 256;
 const H: u32 = 240;
@@ -264,6 +264,22 @@ fn train_then_predict_finds_the_box() {
     );
     let auc = printed_auc(&text);
     assert!(auc > 0.97, "{text}");
+    // An object asked for that no label names is refused, as train and eval refuse it.
+    let line = one_line_error(&objloc(
+        &[
+            "predict",
+            p(&tour),
+            "--model",
+            p(&model),
+            "--out",
+            p(&dir.path().join("pear")),
+            "--object",
+            "pear",
+            "--no-rerun",
+        ],
+        &[],
+    ));
+    assert!(line.contains("names object \"pear\""), "{line}");
     // 3 labelled frames x 960 tiles. Positives: box 1 (x 100..140, y 40..100) holds cols
     // 13..=16 and rows 5..=11 whole: 4 x 7 = 28; box 2 (x 10..46, y 150..198) holds cols
     // 2..=4 and rows 19..=23: 3 x 5 = 15; total 43.
@@ -346,7 +362,7 @@ fn bad_inputs_fail_with_one_line_and_no_output() {
     assert!(line.contains("nope.mcap"), "{line}");
     assert!(!model.exists());
 
-    // Tree and feature options out of range, refused before any work.
+    // Tree and feature options out of range, refused before any work as usage errors.
     for (flag, value, expect) in [
         ("--context-tiles", "9", "--context-tiles 9 is over 4"),
         (
@@ -361,6 +377,7 @@ fn bad_inputs_fail_with_one_line_and_no_output() {
         ),
         ("--base-mix", "1.5", "--base-mix 1.5 must be in [0, 1)"),
         ("--trees", "0", "--trees 0 must be 1 to 256"),
+        ("--tile", "0", "--tile 0 px is outside 2..=128 px"),
         (
             "--m-estimate",
             "0",
@@ -382,7 +399,7 @@ fn bad_inputs_fail_with_one_line_and_no_output() {
         let mut args = vec!["train", p(&session), "-o", p(&model), flag, value];
         args.extend_from_slice(augment);
         let out = objloc(&args, &[]);
-        assert_eq!(one_line_error(&out), format!("error: {expect}"));
+        assert_eq!(usage_error(&out), format!("error: {expect}"));
         assert!(!model.exists());
     }
 

@@ -58,6 +58,18 @@ pub fn one_line_error(out: &Output) -> String {
     lines[0].to_owned()
 }
 
+/// A command-line mistake found after parsing (a value out of range, a flag without the one
+/// it qualifies): exit 2 like clap's own usage errors, one `error:` line, no panic. Returns
+/// that line.
+pub fn usage_error(out: &Output) -> String {
+    let err = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert_eq!(out.status.code(), Some(2), "stderr: {err}");
+    let lines: Vec<&str> = err.lines().collect();
+    assert_eq!(lines.len(), 1, "not one line: {err}");
+    assert!(lines[0].starts_with("error: "), "{err}");
+    lines[0].to_owned()
+}
+
 /// A path as a command-line argument (temporary paths are UTF-8).
 pub fn p(path: &Path) -> &str {
     path.to_str().expect("utf-8 temp path")

@@ -106,6 +106,9 @@ pub struct LoadedSession {
     /// Messages on the command topic (/cmd_vel): a ground robot's session has them, a posed
     /// capture (phone, arm, structure from motion) has none.
     pub commands: usize,
+    /// What the reader found wrong but could read past (a truncated file, a message with
+    /// a bad stamp), one line each naming the file: the command prints them, as fuse does.
+    pub warnings: Vec<String>,
 }
 
 /// Reads a session's frames and labels. `object`: use only labels naming it (None: all).
@@ -190,6 +193,7 @@ pub fn load_session(
         frames,
         label_objects,
         commands,
+        warnings: reader.warnings.clone(),
     })
 }
 

@@ -61,6 +61,14 @@ pub fn parse_labels(path: &Path, text: &str) -> Result<Labels, ImportError> {
             .or_default()
             .push(LabelRow { line, object, roi });
     }
+    // An empty file (or a header alone) labels nothing: most likely the wrong file, and a
+    // session imported from it would train on nothing without saying so.
+    if out.is_empty() {
+        return Err(ImportError::File(CaptureError::Invalid {
+            path: path.into(),
+            what: "no label rows (`image,x,y,width,height[,object]`; an empty box marks a background frame)".into(),
+        }));
+    }
     Ok(out)
 }
 
@@ -213,6 +221,10 @@ mod tests {
             e.to_string(),
             "l.csv:1: expected 5 or 6 columns `image,x,y,width,height[,object]`, found 4"
         );
+        for empty in ["", "image,x,y,width,height\n", "# nothing yet\n\n"] {
+            let e = parse_labels(p, empty).unwrap_err();
+            assert!(e.to_string().starts_with("l.csv: no label rows"), "{e}");
+        }
     }
 
     #[test]
