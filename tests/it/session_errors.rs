@@ -561,3 +561,50 @@ fn a_camera_info_that_changes_is_a_warning_naming_the_change() {
         run.stdout
     );
 }
+
+/// Every command that reads a truncated session says so on stderr, as fuse does (train,
+/// predict and eval said nothing and went on with the part they could read).
+#[test]
+fn train_predict_and_eval_warn_of_a_truncated_session() {
+    use crate::common::{objloc, ok, p, repo_dir};
+    let dir = tempfile::tempdir().unwrap();
+    let bytes = std::fs::read(repo_dir().join("recordings/chair-train.mcap")).unwrap();
+    let cut = dir.path().join("cut.mcap");
+    std::fs::write(&cut, &bytes[..bytes.len() * 3 / 4]).unwrap();
+    let model = dir.path().join("m.json");
+    let out = dir.path().join("pred");
+    let report = dir.path().join("r.json");
+    let runs: [Vec<&str>; 4] = [
+        vec!["train", p(&cut), "-o", p(&model), "--no-rerun"],
+        vec![
+            "predict",
+            p(&cut),
+            "--model",
+            p(&model),
+            "--out",
+            p(&out),
+            "--no-rerun",
+        ],
+        vec![
+            "fuse",
+            p(&cut),
+            "--model",
+            p(&model),
+            "--report",
+            p(&report),
+            "--no-rerun",
+        ],
+        vec!["eval", p(&cut), "--report", p(&report)],
+    ];
+    for args in runs {
+        let run = objloc(&args, &[]);
+        ok(&run);
+        let err = String::from_utf8_lossy(&run.stderr);
+        assert!(
+            err.lines()
+                .any(|l| l.starts_with("warning:") && l.contains("truncated")),
+            "{}: {err}",
+            args[0]
+        );
+    }
+}
