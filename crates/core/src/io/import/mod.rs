@@ -434,6 +434,12 @@ fn encoded_of(path: &Path) -> Result<(&'static str, Vec<u8>, u32, u32), ImportEr
         .map_err(|e| invalid(format!("image does not decode: {e}")))?;
     let (w, h) = (img.width(), img.height());
     if bytes.starts_with(&[0xFF, 0xD8, 0xFF]) {
+        if !crate::io::session::jpeg_is_complete(&bytes) {
+            return Err(invalid(format!(
+                "JPEG of {} bytes ends inside its image data (no end-of-image marker): truncated",
+                bytes.len()
+            )));
+        }
         return Ok(("jpeg", bytes, w, h));
     }
     let rgb = img.into_rgb8();

@@ -400,6 +400,20 @@ fn jpeg_is_upright(data: &[u8]) -> bool {
         .is_ok_and(|o| o == image::metadata::Orientation::NoTransforms)
 }
 
+/// Whether a JPEG has an end-of-image marker (FF D9) after its last start-of-scan (FF DA).
+/// Neither pair occurs inside entropy-coded data (an FF there is followed by 00 or a restart
+/// marker), so a file cut inside its last scan has none after it, whatever comes before (an
+/// EXIF thumbnail's own EOI precedes the main image's scans). Bytes after the EOI are allowed.
+pub(crate) fn jpeg_is_complete(data: &[u8]) -> bool {
+    let last = |marker: u8| data.windows(2).rposition(|w| w == [0xFF, marker]);
+    match (last(0xDA), last(0xD9)) {
+        (Some(sos), Some(eoi)) => eoi > sos,
+        // No scan at all: the decoder's own error says what is wrong.
+        (None, _) => true,
+        (Some(_), None) => false,
+    }
+}
+
 /// One camera frame of a session, from either image topic.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Frame {
@@ -429,6 +443,13 @@ pub enum FrameError {
         width: u32,
         /// Height the image declares, pixels.
         height: u32,
+    },
+    /// A JPEG without its end-of-image marker after its last scan: cut short (a decoder
+    /// fills the missing part with grey and says nothing).
+    #[error("JPEG of {bytes} bytes ends inside its image data (no end-of-image marker): truncated")]
+    TruncatedJpeg {
+        /// The file's length, bytes.
+        bytes: usize,
     },
     /// A CompressedImage format other than PNG and JPEG.
     #[error("compressed format {0:?} is not read (objloc reads png and jpeg)")]
@@ -515,9 +536,12 @@ impl Frame {
         }
         match &self.pixels {
             FramePixels::Encoded { format, data } => {
-                let fmt = EncodedMedia::of_format(format)
-                    .ok_or_else(|| FrameError::Format(format.clone()))?
-                    .image_format();
+                let media = EncodedMedia::of_format(format)
+                    .ok_or_else(|| FrameError::Format(format.clone()))?;
+                if media == EncodedMedia::Jpeg && !jpeg_is_complete(data) {
+                    return Err(FrameError::TruncatedJpeg { bytes: data.len() });
+                }
+                let fmt = media.image_format();
                 let img = image::load_from_memory_with_format(data, fmt)?.into_rgb8();
                 Ok(Rgb8 {
                     width: img.width(),
@@ -679,6 +703,44 @@ mod tests {
         out.extend_from_slice(&app1);
         out.extend_from_slice(&jpeg[2..]);
         out
+    }
+
+    #[test]
+    fn a_jpeg_cut_short_is_refused_not_filled_with_grey() {
+        let mut jpeg = Vec::new();
+        let pixels: Vec<u8> = (0..32 * 32 * 3).map(|i| (i * 7 % 251) as u8).collect();
+        image::codecs::jpeg::JpegEncoder::new(&mut jpeg)
+            .encode(&pixels, 32, 32, image::ExtendedColorType::Rgb8)
+            .unwrap();
+        assert!(frame("jpeg", jpeg.clone()).decode_rgb8().is_ok());
+        // Bytes after the end-of-image marker (some cameras pad) are no reason to refuse.
+        let mut padded = jpeg.clone();
+        padded.extend_from_slice(&[0; 16]);
+        assert!(frame("jpeg", padded).decode_rgb8().is_ok());
+        // Cut inside the scan: image's decoder alone returns grey pixels without an error.
+        let cut = jpeg[..jpeg.len() - 40].to_vec();
+        assert!(image::load_from_memory(&cut).is_ok());
+        let e = frame("jpeg", cut.clone()).decode_rgb8().unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            format!(
+                "JPEG of {} bytes ends inside its image data (no end-of-image marker): truncated",
+                cut.len()
+            )
+        );
+        // A thumbnail's end marker before the scans (here in an APP2 segment) does not hide
+        // a cut in the main image.
+        let thumb = b"\xFF\xD8thumbnail\xFF\xD9";
+        let mut with_thumb = jpeg[..2].to_vec();
+        with_thumb.extend_from_slice(&[0xFF, 0xE2, 0, 2 + thumb.len() as u8]);
+        with_thumb.extend_from_slice(thumb);
+        with_thumb.extend_from_slice(&jpeg[2..]);
+        assert!(frame("jpeg", with_thumb.clone()).decode_rgb8().is_ok());
+        let cut = with_thumb[..with_thumb.len() - 40].to_vec();
+        assert!(matches!(
+            frame("jpeg", cut).decode_rgb8(),
+            Err(FrameError::TruncatedJpeg { .. })
+        ));
     }
 
     #[test]
