@@ -412,7 +412,7 @@ pub fn print_summary(f: &Fused) {
         r.grid.dims[0],
         r.grid.dims[1],
         r.grid.dims[2],
-        r.grid.voxel_size_m,
+        objloc_core::out::report::significant(r.grid.voxel_size_m, 5),
         r.grid.prior,
         &r.grid.sha256[..16]
     );

@@ -124,7 +124,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         );
     }
     say!(
-        "labelled frames {}: {} tiles, {} positive; tile ROC AUC {}, log-loss {:.5}, accuracy {:.5}",
+        "{} (probs.npy): labelled frames {}: {} tiles, {} positive; tile ROC AUC {}, log-loss {:.5}, accuracy {:.5}",
+        if model.region.is_some() {
+            "region head"
+        } else {
+            "tile head"
+        },
         pred.labelled_frames,
         m.n,
         m.positives,

@@ -125,6 +125,7 @@ struct ImportArgs {
     /// Object name written on /labels for rows (and masks) that name none.
     #[arg(long, default_value = "object")]
     object: String,
+    /// The session to write (ROS 2 MCAP; written as OUTPUT.partial and renamed when complete).
     #[arg(short, long)]
     output: PathBuf,
     /// No progress bar (there is none anyway when stderr is not a terminal).

@@ -675,6 +675,42 @@ fn import_tum_pairs_unpadded_names_in_natural_order() {
     assert!(err.contains("matched by file-name timestamps"), "{err}");
 }
 
+/// Numbers for names that are not the trajectory's times, and fewer lines than images: the
+/// error says both (it gave only the stamp's, which hid the count).
+#[test]
+fn import_names_both_reasons_when_neither_matching_works() {
+    let dir = tempfile::tempdir().unwrap();
+    let images = image_dir(
+        dir.path(),
+        &[
+            ("1.png", 8, 8, [1, 2, 3]),
+            ("2.png", 8, 8, [1, 2, 3]),
+            ("3.png", 8, 8, [1, 2, 3]),
+        ],
+    );
+    let traj = dir.path().join("traj.txt");
+    std::fs::write(&traj, "10.0 0 0 0 0 0 0 1\n11.0 1 0 0 0 0 0 1\n").unwrap();
+    let line = one_line_error(&objloc(
+        &[
+            "record",
+            "import",
+            "--images",
+            p(&images),
+            "--trajectory",
+            p(&traj),
+            "--camera",
+            "5,5,4,4",
+            "-o",
+            p(&dir.path().join("o.mcap")),
+        ],
+        &[],
+    ));
+    assert!(
+        line.contains("is outside the trajectory") && line.contains("2 poses for 3 images"),
+        "{line}"
+    );
+}
+
 #[test]
 fn import_notes_poses_that_look_like_opengl_axes() {
     // Four cameras on a circle of 2 m whose +z points away from the centre: -z (OpenGL's

@@ -583,7 +583,9 @@ pub fn summarize_quick(path: &Path, topics: Topics) -> Result<QuickSummary, Sess
             )));
         }
         Ok(None) => "the file has no summary section with statistics".to_owned(),
-        Err(e) => format!("the summary section does not read: {e}"),
+        // The reader's error already says what it is ("FILE: the summary section does not
+        // read: ...").
+        Err(e) => e.to_string(),
     };
     Ok(QuickSummary::FullScan {
         why,

@@ -119,6 +119,22 @@ pub struct Report {
     pub timing_ms: BTreeMap<String, f64>,
 }
 
+/// `x` to `digits` significant digits, trailing zeros dropped, for a person to read: a fitted
+/// voxel of 0.042032799621501124 session units prints as 0.042033, a metric 0.04 as 0.04
+/// (the report keeps every digit).
+pub fn significant(x: f64, digits: i32) -> String {
+    if x == 0.0 || !x.is_finite() {
+        return x.to_string();
+    }
+    let decimals = (digits - 1 - x.abs().log10().floor() as i32).max(0) as usize;
+    let s = format!("{x:.decimals$}");
+    if s.contains('.') {
+        s.trim_end_matches('0').trim_end_matches('.').to_owned()
+    } else {
+        s
+    }
+}
+
 /// SHA-256 of a file, hex.
 pub fn file_sha256(path: &Path) -> std::io::Result<String> {
     crate::types::digest::sha256_hex_of_reader(std::fs::File::open(path)?)
@@ -272,5 +288,21 @@ impl Report {
     /// 5 000-frame report is 6.6 MB of it); an error if it does not serialize.
     pub fn write_json(&self, w: &mut dyn std::io::Write) -> std::io::Result<()> {
         serde_json::to_writer_pretty(w, self).map_err(std::io::Error::from)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::significant;
+
+    #[test]
+    fn numbers_print_to_a_few_significant_digits() {
+        assert_eq!(significant(0.042032799621501124, 5), "0.042033");
+        assert_eq!(significant(0.04, 5), "0.04");
+        assert_eq!(significant(2.9561e-2, 5), "0.029561");
+        assert_eq!(significant(-0.0123456, 3), "-0.0123");
+        assert_eq!(significant(12.5, 5), "12.5");
+        assert_eq!(significant(123456.0, 5), "123456");
+        assert_eq!(significant(0.0, 5), "0");
     }
 }

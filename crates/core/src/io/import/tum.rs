@@ -173,7 +173,7 @@ fn pose_at(traj: &[TrajectoryPose], stamp_ns: i64) -> Result<Iso3, String> {
 /// names are stamps when every one falls within the trajectory; when one does not and there
 /// are as many images as lines, they are frame numbers (`1.jpg` ... `43.jpg` against a
 /// trajectory timed 0 ... 42) and the images are matched in order, saying so; with a
-/// different count the stamp's own error stands.
+/// different count the error says both why the stamps fail and that the counts differ.
 fn pose_images(
     trajectory: &Path,
     images_dir: &Path,
@@ -192,7 +192,18 @@ fn pose_images(
     if let Some(stamps) = stems {
         match posed_by_stamps(traj, images, &stamps) {
             Ok(posed) => return Ok((posed, Matching::FileNameStamps)),
-            Err(e) if images.len() != traj.len() => return Err(e),
+            // Neither way works: say both, since which one the user meant is not known.
+            Err(e) if images.len() != traj.len() => {
+                return Err(ImportError::File(CaptureError::Invalid {
+                    path: trajectory.into(),
+                    what: format!(
+                        "the image names are numbers but not its times ({e}), and images cannot be matched to its lines in order either: {} poses for {} images in {}",
+                        traj.len(),
+                        images.len(),
+                        images_dir.display()
+                    ),
+                }));
+            }
             Err(e) => {
                 matching = Matching::InOrderNotStamps(format!(
                     "the file names are numbers but not the trajectory's times ({e}): images matched to its lines in order"
