@@ -5,7 +5,7 @@
 use super::say;
 
 use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use anyhow::Context;
 
@@ -57,7 +57,7 @@ pub fn run(reader: &SessionReader, args: &Args, session_sha256: &str) -> anyhow:
         let model = report_model(&report, path);
         let object = match (&args.object, &model) {
             (Some(o), _) => Some(o.clone()),
-            (None, Some((_, m))) => m.metadata.object.clone(),
+            (None, Some(m)) => m.metadata.object.clone(),
             (None, None) => Some(only_object(&rects, &report, path)?),
         };
         if let Some(o) = object.as_ref().filter(|o| !rects.contains_key(*o)) {
@@ -70,7 +70,7 @@ pub fn run(reader: &SessionReader, args: &Args, session_sha256: &str) -> anyhow:
         let candidates: Vec<[f64; 3]> = report.objects.iter().map(|o| o.centroid_m).collect();
         let auc = model
             .as_ref()
-            .and_then(|(_, m)| tile_auc(m, args, object.as_deref()));
+            .and_then(|m| tile_auc(m, args, object.as_deref()));
         for (name, frames) in &rects {
             if object.as_ref().is_some_and(|o| o != name) {
                 continue;
@@ -121,7 +121,7 @@ pub fn run(reader: &SessionReader, args: &Args, session_sha256: &str) -> anyhow:
 /// The model the report was fused with: at the path the report names (as typed to `fuse`,
 /// so relative to where it ran), else at that path or under its file name beside the report;
 /// the first file whose SHA-256 is the report's `model_sha256`. None when none is.
-fn report_model(report: &Report, report_path: &Path) -> Option<(PathBuf, Model)> {
+fn report_model(report: &Report, report_path: &Path) -> Option<Model> {
     let named = Path::new(&report.model);
     let beside = report_path.parent().unwrap_or(Path::new(""));
     let mut candidates = vec![named.to_path_buf()];
@@ -133,7 +133,7 @@ fn report_model(report: &Report, report_path: &Path) -> Option<(PathBuf, Model)>
     }
     candidates.into_iter().find_map(|c| {
         let same = file_sha256(&c).ok()? == report.model_sha256;
-        same.then(|| Model::load(&c).ok().map(|m| (c, m)))?
+        same.then(|| Model::load(&c).ok())?
     })
 }
 
