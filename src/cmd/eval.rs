@@ -29,6 +29,11 @@ pub struct Args {
     /// object on /labels; else every object when the model names none).
     #[arg(long)]
     pub object: Option<String>,
+    /// Score reports fused from another session than SESSION (a warning says so): a capture
+    /// imported from a simulated session, scored against the original's ground truth. Without
+    /// it such a report is refused, since its numbers would mean nothing.
+    #[arg(long)]
+    pub any_session: bool,
     /// No progress spinner (there is none anyway when stderr is not a terminal).
     #[arg(short, long)]
     pub quiet: bool,
@@ -73,7 +78,7 @@ fn evaluate_reports(args: &Args) -> anyhow::Result<()> {
     let truth = true_objects(&gt);
     let mut evals = Vec::new();
     for path in &args.reports {
-        let report = read_report_of(path, &args.session, &session_sha256)?;
+        let report = read_report_of(path, args, &session_sha256)?;
         evals.push(evaluate(
             &path.display().to_string(),
             &report,
@@ -84,13 +89,14 @@ fn evaluate_reports(args: &Args) -> anyhow::Result<()> {
     print_evals(args, &evals)
 }
 
-/// A fuse report of this objloc's version fused from `session` (whose file hashes to
+/// A fuse report of this objloc's version fused from `args.session` (whose file hashes to
 /// `session_sha256`): scoring a report against another session's truth or rectangles gives
-/// numbers that mean nothing.
-pub fn read_report_of(path: &Path, session: &Path, session_sha256: &str) -> anyhow::Result<Report> {
+/// numbers that mean nothing, unless the sessions share their world frame and the user says
+/// so (`--any-session`).
+pub fn read_report_of(path: &Path, args: &Args, session_sha256: &str) -> anyhow::Result<Report> {
     let report = read_report(path)?;
     if report.session_sha256 != session_sha256 {
-        bail!(
+        let what = format!(
             "{}: fused from another session ({}, sha256 {}...), not {} (sha256 {}...)",
             path.display(),
             report.session,
@@ -98,9 +104,13 @@ pub fn read_report_of(path: &Path, session: &Path, session_sha256: &str) -> anyh
                 .session_sha256
                 .get(..12)
                 .unwrap_or(&report.session_sha256),
-            session.display(),
+            args.session.display(),
             session_sha256.get(..12).unwrap_or(session_sha256)
         );
+        if !args.any_session {
+            bail!("{what}; --any-session scores it anyway");
+        }
+        eprintln!("warning: {what}: scored as asked (--any-session)");
     }
     Ok(report)
 }

@@ -53,7 +53,7 @@ pub fn run(reader: &SessionReader, args: &Args, session_sha256: &str) -> anyhow:
     // (report, score, tile AUC, objects the report located)
     let mut scores: Vec<(String, RectScore, Option<f64>, usize)> = Vec::new();
     for path in &args.reports {
-        let report = read_report_of(path, &args.session, session_sha256)?;
+        let report = read_report_of(path, args, session_sha256)?;
         let model = report_model(&report, path);
         let object = match (&args.object, &model) {
             (Some(o), _) => Some(o.clone()),

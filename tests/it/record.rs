@@ -938,9 +938,24 @@ fn a_simulated_tour_imported_as_a_capture_finds_its_chair() {
         if case == "shipped" {
             eval_finds_the_model_beside_the_report(dir.path(), &tour_capture, &report, &model);
             let wrong = objloc(&["eval", p(&train_capture), "--report", p(&report)], &[]);
+            let line = one_line_error(&wrong);
             assert!(
-                one_line_error(&wrong).contains("fused from another session"),
-                "{case}"
+                line.contains("fused from another session")
+                    && line.ends_with("; --any-session scores it anyway"),
+                "{line}"
+            );
+            // Asked for (a capture imported from a simulated tour shares its world frame):
+            // scored against the original tour's ground truth, with a warning.
+            let run = objloc(
+                &["eval", p(&tour), "--report", p(&report), "--any-session"],
+                &[],
+            );
+            let text = ok(&run);
+            assert!(text.contains("voxel IoU"), "{text}");
+            let err = String::from_utf8_lossy(&run.stderr);
+            assert!(
+                err.starts_with("warning: ") && err.contains("scored as asked (--any-session)"),
+                "{err}"
             );
         }
     }
