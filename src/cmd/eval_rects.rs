@@ -164,7 +164,8 @@ fn tile_auc(model: &Model, args: &Args, object: Option<&str>) -> Option<f64> {
 }
 
 fn print_score(report: &str, s: &RectScore, located: usize) {
-    say!("{report}: {} ({located} objects located)", s.object);
+    let plural = if located == 1 { "" } else { "s" };
+    say!("{report}: {} ({located} object{plural} located)", s.object);
     match &s.triangulated {
         Some(t) => say!(
             "  triangulated centre ({:.4}, {:.4}, {:.4}) from {} views wholly in view, ray residual rms {:.4} (max {:.4}), size {:.4} (session units)",
