@@ -235,6 +235,45 @@ fn refinement_leaves_exact_odometry_within_tolerance() {
     }
 }
 
+/// Speed noises set far wider than the robot's (5 %/3 % typed as 0.05/0.03 instead of the
+/// 0.015/0.009 of a 0.3 m/s, 0.3 rad/s robot): the search then reaches poses that move the
+/// frame's floor off the map, where it scores as an average fit. Before the floor had to keep
+/// half its overlap, frame 1 of the shipped drift tour jumped 1.5 m on one floor cell, the
+/// poses ended 4.9 m and 37 degrees from /odom, and the chair was found 2.3 m away, all
+/// approved by the end check. Measured now 0.65 m at most and the chair within 0.06 m.
+#[test]
+fn wide_speed_noises_do_not_move_frames_off_the_floor_map() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = train(dir.path());
+    let session = repo_dir().join("recordings/chair-tour-drift.mcap");
+    let report = dir.path().join("wide.json");
+    ok(&objloc(
+        &[
+            "fuse",
+            p(&session),
+            "--model",
+            p(&model),
+            "--report",
+            p(&report),
+            "--no-rerun",
+            "--sigma-v",
+            "0.05",
+            "--sigma-w",
+            "0.03",
+        ],
+        &[],
+    ));
+    let out = ok(&objloc(
+        &["eval", p(&session), "--report", p(&report), "--json"],
+        &[],
+    ));
+    let evals: Value = serde_json::from_str(&out).expect("eval JSON");
+    let e = chair_error(&evals[0]);
+    assert!(e < 0.1, "chair {e} m off");
+    let (moved, _) = largest_move(&json(&report));
+    assert!(moved < 1.0, "a pose moved {moved} m from /odom");
+}
+
 /// Exact odometry over a checkered floor (a repeating pattern the floor term could lock onto
 /// a period off): refinement must leave the trajectory where /odom has it.
 #[test]
