@@ -249,6 +249,7 @@ pub fn fuse(
     default_rrd: &Path,
 ) -> anyhow::Result<Fused> {
     // Checked before any file is read: a contradiction in the flags, not in the inputs.
+    check_grid_flags(args)?;
     super::usage_check(
         !(args.refine_poses && args.sigma_v <= 0.0 && args.sigma_w <= 0.0),
         || {
@@ -331,6 +332,29 @@ pub fn fuse(
         timing,
     );
     Ok(Fused { outcome, report })
+}
+
+/// The grid's flags as a usage error before any file is read: the grid refused them later,
+/// and the message then named the session as if it were to blame.
+fn check_grid_flags(args: &FuseArgs) -> anyhow::Result<()> {
+    if let Some(v) = args.voxel {
+        super::usage_check(v.is_finite() && v > 0.0, || {
+            format!("--voxel {v} must be a positive number (the session's units)")
+        })?;
+    }
+    if let Some((lo, hi)) = args.bounds {
+        super::usage_check(
+            (0..3).all(|a| lo[a].is_finite() && hi[a].is_finite() && lo[a] < hi[a]),
+            || format!("--bounds: min {lo:?} must be below max {hi:?} on every axis"),
+        )?;
+    }
+    if let Some(prior) = args.prior {
+        let min = objloc_core::fuse::grid::MIN_PRIOR;
+        super::usage_check((min..=1.0 - min).contains(&prior), || {
+            format!("--prior {prior} must lie within [{min:e}, 1 - {min:e}]")
+        })?;
+    }
+    Ok(())
 }
 
 /// Writes the report and grid where asked; the grid's size is checked before anything is
@@ -566,6 +590,19 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             PathBuf::from(format!("{stem}-fuse.rrd"))
         }
     };
+    let recording = args.rerun.file(&default_rrd);
+    let mut outputs: Vec<(&str, &Path)> = [
+        ("--report", args.report.as_deref()),
+        ("--grid", args.grid.as_deref()),
+    ]
+    .into_iter()
+    .filter_map(|(flag, p)| p.map(|p| (flag, p)))
+    .collect();
+    outputs.extend(recording.as_ref().map(|(what, p)| (*what, p.as_path())));
+    super::prepare_outputs(
+        &[("session", &args.session), ("--model", &args.model)],
+        &outputs,
+    )?;
     let f = fuse(
         &args.session,
         &args.model,

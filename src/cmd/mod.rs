@@ -11,7 +11,10 @@ mod progress;
 mod record;
 mod train;
 
+use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
+
+use anyhow::Context;
 
 use clap::{Parser, Subcommand};
 
@@ -95,7 +98,7 @@ impl TopicArgs {
     pub fn topics(&self) -> anyhow::Result<Topics> {
         Topics::default()
             .with_overrides(&self.overrides)
-            .map_err(anyhow::Error::msg)
+            .map_err(|e| UsageError(format!("--topic: {e}")).into())
     }
 }
 
@@ -120,6 +123,66 @@ pub(crate) fn usage_check(ok: bool, message: impl FnOnce() -> String) -> anyhow:
     } else {
         Err(UsageError(message()).into())
     }
+}
+
+/// `p` as the file system resolves it, to compare outputs with inputs: canonical where it
+/// exists, else its directory's canonical path joined with its name.
+fn resolved(p: &Path) -> PathBuf {
+    if let Ok(c) = p.canonicalize() {
+        return c;
+    }
+    let dir = p
+        .parent()
+        .filter(|d| !d.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    match (dir.canonicalize(), p.file_name()) {
+        (Ok(d), Some(name)) => d.join(name),
+        _ => p.to_path_buf(),
+    }
+}
+
+/// Before any work: refuses an output that is one of the inputs (it would be overwritten,
+/// silently: `fuse S.mcap --report S.mcap` replaced the session with its report) or another
+/// output (the one written last would replace the other: `train -o m.json --save m.json`
+/// left a recording where the model was said to be), as a usage error naming both flags;
+/// then creates the outputs' directories, so that a missing one is not found only after the
+/// replay (the recording's saver created them, the report's writer did not).
+pub(crate) fn prepare_outputs(
+    inputs: &[(&str, &Path)],
+    outputs: &[(&str, &Path)],
+) -> anyhow::Result<()> {
+    let ins: Vec<PathBuf> = inputs.iter().map(|(_, p)| resolved(p)).collect();
+    let outs: Vec<PathBuf> = outputs.iter().map(|(_, p)| resolved(p)).collect();
+    for (k, ((flag, path), r)) in outputs.iter().zip(&outs).enumerate() {
+        let shown = path.display();
+        if let Some(i) = ins.iter().position(|x| x == r) {
+            let (input, _) = inputs[i];
+            return Err(UsageError(format!(
+                "{flag} {shown} is the {input}: writing it would destroy it"
+            ))
+            .into());
+        }
+        if let Some(j) = outs[..k].iter().position(|x| x == r) {
+            let (other, _) = outputs[j];
+            let hint = if *flag == crate::viz::DEFAULT_RECORDING {
+                " (--save FILE or --no-rerun puts the recording elsewhere)"
+            } else {
+                ""
+            };
+            return Err(UsageError(format!(
+                "{flag} {shown} is also {other}: one would overwrite the other{hint}"
+            ))
+            .into());
+        }
+    }
+    for (flag, path) in outputs {
+        if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+            std::fs::create_dir_all(dir).with_context(|| {
+                format!("{flag} {}: creating {}", path.display(), dir.display())
+            })?;
+        }
+    }
+    Ok(())
 }
 
 pub fn main(cli: Cli) -> std::process::ExitCode {

@@ -298,6 +298,17 @@ fn run_sim(a: SimArgs) -> anyhow::Result<()> {
 }
 
 fn run_import(a: ImportArgs) -> anyhow::Result<()> {
+    let inputs: Vec<(&str, &std::path::Path)> = [
+        ("--trajectory", a.trajectory.as_deref()),
+        ("--nerf", a.nerf.as_deref()),
+        ("--llff", a.llff.as_deref()),
+        ("--idr", a.idr.as_deref()),
+        ("--labels", a.labels.as_deref()),
+    ]
+    .into_iter()
+    .filter_map(|(flag, p)| p.map(|p| (flag, p)))
+    .collect();
+    super::prepare_outputs(&inputs, &[("-o", &a.output)])?;
     let opts = objloc_core::io::import::ImportOptions {
         poses: pose_file(&a)?,
         labels: a.labels,

@@ -305,6 +305,15 @@ fn fit_to_sessions(
 pub fn run(args: Args) -> anyhow::Result<()> {
     let topics = args.topics.topics()?;
     let mut cfg = config(&args)?;
+    let recording = args.rerun.file(&args.output.with_extension("rrd"));
+    let mut outputs = vec![("-o", args.output.as_path())];
+    outputs.extend(recording.as_ref().map(|(what, p)| (*what, p.as_path())));
+    let inputs: Vec<(&str, &std::path::Path)> = args
+        .sessions
+        .iter()
+        .map(|p| ("session", p.as_path()))
+        .collect();
+    super::prepare_outputs(&inputs, &outputs)?;
     let stage = super::progress::stage_spinner(args.quiet);
     stage.set_message("train: reading sessions");
     let t0 = Instant::now();

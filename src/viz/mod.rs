@@ -324,6 +324,22 @@ pub fn open_command(path: &Path) -> String {
 }
 
 /// `path` with its extension replaced by `.rrd` (the default recording beside a report).
+/// How a message names the recording a command saves when no Rerun flag is given.
+pub const DEFAULT_RECORDING: &str = "the default recording";
+
+impl VizArgs {
+    /// The file the recording will be written to, when it goes to a file (`--save`, or the
+    /// command's default `.rrd`), with the words that name it in a message: what a command
+    /// checks against its inputs and outputs.
+    pub fn file(&self, default_rrd: &Path) -> Option<(&'static str, PathBuf)> {
+        match &self.target {
+            Target::Default => Some((DEFAULT_RECORDING, default_rrd.to_path_buf())),
+            Target::Save(p) => Some(("--save", p.clone())),
+            _ => None,
+        }
+    }
+}
+
 pub fn rrd_beside(path: &Path) -> PathBuf {
     path.with_extension("rrd")
 }

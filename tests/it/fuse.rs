@@ -475,11 +475,29 @@ fn fuse_refuses_bad_input_with_one_line_errors_and_no_outputs() {
         assert!(err.contains(flag) && err.contains(says), "{err}");
     }
     // A prior so near 0 that the probability blur would underflow is refused, naming it.
-    let line = one_line_error(&fuse(&["--model", p(&model), "--prior", "1e-12"]));
+    let line = usage_error(&fuse(&["--model", p(&model), "--prior", "1e-12"]));
     assert!(
         line.contains("prior 0.000000000001") || line.contains("prior 1e-12"),
         "{line}"
     );
+    // The grid's flags are checked before the session is read, and the session is not
+    // blamed for them.
+    for (flag, value, says) in [
+        ("--voxel", "0", "--voxel 0 must be a positive number"),
+        ("--voxel", "nan", "--voxel NaN must be a positive number"),
+        (
+            "--bounds",
+            "1,1,1,-1,-1,0",
+            "--bounds: min [1.0, 1.0, 1.0] must be below max",
+        ),
+    ] {
+        let line = usage_error(&fuse(&["--model", p(&model), &format!("{flag}={value}")]));
+        assert_eq!(
+            line,
+            format!("error: fuse: {}", line.trim_start_matches("error: fuse: "))
+        );
+        assert!(line.contains(says), "{line}");
+    }
     // --no-floor only means something when refining.
     let out = fuse(&["--model", p(&model), "--no-refine-poses", "--no-floor"]);
     assert_eq!(out.status.code(), Some(2));
@@ -629,32 +647,83 @@ fn a_camera_on_a_pan_tilt_head_is_located_through_tf() {
     let tour = d.join("tour.mcap");
     let inspect = ok(&objloc(&["inspect", p(&tour)], &[]));
     assert!(inspect.contains("/tf "), "{inspect}");
-    let error_of = |extra: &[&str]| -> (Option<f64>, String) {
+    let error_of_session = |session: &std::path::Path| -> (Option<f64>, String) {
         let report = d.join("r.json");
         let mut args = vec![
             "fuse",
-            p(&tour),
+            p(session),
             "--model",
             p(&model),
             "--report",
             p(&report),
         ];
         args.extend_from_slice(&["--no-rerun"]);
-        args.extend_from_slice(extra);
         let run = objloc(&args, &[]);
         let stderr = String::from_utf8_lossy(&run.stderr).to_string();
         ok(&run);
-        let ev = json_eval(&tour, &report);
+        let ev = json_eval(session, &report);
         (ev, stderr)
     };
     // Measured 0.031 m (0.115 m with --no-refine-poses: the head sweeps, odometry drifts).
-    let (err, stderr) = error_of(&[]);
+    let (err, stderr) = error_of_session(&tour);
     assert!(err.is_some_and(|e| e < 0.08), "{err:?}");
     // On a pipe the progress bar stays hidden: nothing on stderr.
     assert!(stderr.is_empty(), "{stderr}");
-    let (err, stderr) = error_of(&["--topic", "tf=/none"]);
+    // The same tour without its /tf: the mount is wrong, and the fuser says why.
+    let without_tf = d.join("tour-no-tf.mcap");
+    copy_without_topic(&tour, &without_tf, "/tf");
+    let (err, stderr) = error_of_session(&without_tf);
     assert!(stderr.contains("a moving mount's /tf missing?"), "{stderr}");
     assert!(err.is_none_or(|e| e > 0.08), "{err:?}");
+    // Naming a topic the file lacks is a mistake, not a session without that role.
+    let line = one_line_error(&objloc(
+        &[
+            "fuse",
+            p(&tour),
+            "--model",
+            p(&model),
+            "--no-rerun",
+            "--topic",
+            "tf=/none",
+        ],
+        &[],
+    ));
+    assert!(
+        line.contains("--topic tf=/none: the file has no such topic"),
+        "{line}"
+    );
+    // So is naming a topic of another type (it read as a session without commands).
+    let line = one_line_error(&objloc(
+        &[
+            "fuse",
+            p(&tour),
+            "--model",
+            p(&model),
+            "--no-rerun",
+            "--topic",
+            "cmd_vel=/odom",
+        ],
+        &[],
+    ));
+    assert!(
+        line.contains("it carries nav_msgs/msg/Odometry; the cmd_vel role needs"),
+        "{line}"
+    );
+}
+
+/// `src` rewritten to `dst` without the messages of `topic` (every other message, channel
+/// and schema as they were).
+fn copy_without_topic(src: &std::path::Path, dst: &std::path::Path, topic: &str) {
+    let bytes = std::fs::read(src).unwrap();
+    let file = std::io::BufWriter::new(std::fs::File::create(dst).unwrap());
+    let mut w = mcap::Writer::new(file).unwrap();
+    for m in mcap::MessageStream::new(&bytes).unwrap() {
+        let m = m.unwrap();
+        if m.channel.topic != topic {
+            w.write(&m).unwrap();
+        }
+    }
+    w.finish().unwrap();
 }
 
 /// The chair's error in `objloc eval --json`, if it was found.
@@ -719,4 +788,97 @@ fn a_distorted_lens_locates_the_chair_as_well_as_a_pinhole() {
     }
     assert!(errors.iter().all(|e| *e < 0.05), "{errors:?}");
     assert!((errors[0] - errors[1]).abs() < 0.02, "{errors:?}");
+}
+
+/// An output that is an input, or two outputs on one file, are refused before any work (the
+/// session or the model was silently replaced by the report; `train -o m.rrd` left a
+/// recording where the model was said to be); a missing output directory is created.
+#[test]
+fn outputs_never_overwrite_inputs_or_each_other() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = train(dir.path());
+    let session = dir.path().join("s.mcap");
+    std::fs::copy(repo_dir().join("recordings/chair-tour.mcap"), &session).unwrap();
+    let before = std::fs::read(&session).unwrap();
+    let same_json = dir.path().join("rg.json");
+    let col = dir.path().join("col.rrd");
+    let cases: [(Vec<&str>, &str); 5] = [
+        (
+            vec![
+                "fuse",
+                p(&session),
+                "--model",
+                p(&model),
+                "--no-rerun",
+                "--report",
+                p(&session),
+            ],
+            "is the session: writing it would destroy it",
+        ),
+        (
+            vec![
+                "fuse",
+                p(&session),
+                "--model",
+                p(&model),
+                "--no-rerun",
+                "--report",
+                p(&model),
+            ],
+            "is the --model",
+        ),
+        (
+            vec![
+                "fuse",
+                p(&session),
+                "--model",
+                p(&model),
+                "--no-rerun",
+                "--report",
+                p(&same_json),
+                "--grid",
+                p(&same_json),
+            ],
+            "--grid",
+        ),
+        (
+            vec![
+                "fuse",
+                p(&session),
+                "--model",
+                p(&model),
+                "--report",
+                p(&col),
+            ],
+            "the default recording",
+        ),
+        (
+            vec!["train", "recordings/chair-train.mcap", "-o", p(&col)],
+            "the default recording",
+        ),
+    ];
+    for (args, says) in cases {
+        let line = usage_error(&objloc(&args, &[]));
+        assert!(line.contains(says), "{args:?}: {line}");
+    }
+    assert_eq!(
+        std::fs::read(&session).unwrap(),
+        before,
+        "the session changed"
+    );
+    assert!(!same_json.exists() && !col.exists());
+    let nested = dir.path().join("new/dir/r.json");
+    ok(&objloc(
+        &[
+            "fuse",
+            p(&session),
+            "--model",
+            p(&model),
+            "--no-rerun",
+            "--report",
+            p(&nested),
+        ],
+        &[],
+    ));
+    assert!(nested.exists());
 }

@@ -56,6 +56,11 @@ pub struct Topics {
     pub ground_truth_pose: String,
     /// The objects' true boxes, `objloc_msgs/msg/GroundTruth` (simulation only).
     pub ground_truth_objects: String,
+    /// Roles whose topic the user named ([`Topics::with_overrides`]): a file must have each,
+    /// of its type. A default name may be absent (a capture has no /cmd_vel); a name typed by
+    /// hand that is absent is a mistake, which would otherwise pass for a missing role.
+    #[serde(skip)]
+    pub named: Vec<Role>,
 }
 
 fn default_tf() -> String {
@@ -75,6 +80,7 @@ impl Default for Topics {
             labels: "/labels".into(),
             ground_truth_pose: "/ground_truth/pose".into(),
             ground_truth_objects: "/ground_truth/objects".into(),
+            named: Vec::new(),
         }
     }
 }
@@ -203,6 +209,9 @@ impl Topics {
                     format!("unknown topic role {key:?}; roles are {}", keys.join(", "))
                 })?;
             *self.get_mut(role) = topic.to_owned();
+            if !self.named.contains(&role) {
+                self.named.push(role);
+            }
         }
         Ok(self)
     }
@@ -333,6 +342,19 @@ pub enum SessionError {
         /// Where the problem is.
         at: At,
         /// What is wrong, in words.
+        what: String,
+    },
+    /// A topic named with `--topic ROLE=TOPIC` is not in the file, or not of the role's type,
+    /// or is another role's topic.
+    #[error("{path}: --topic {role}={topic}: {what}", path = path.display())]
+    NamedTopic {
+        /// The session file.
+        path: PathBuf,
+        /// The role's key, e.g. `cmd_vel`.
+        role: &'static str,
+        /// The topic named for it.
+        topic: String,
+        /// What is wrong.
         what: String,
     },
     /// A topic the command needs holds no message.

@@ -287,7 +287,55 @@ impl SessionReader {
         // not change what is read.
         me.source = Source::file(file);
         me.finish();
+        me.check_named_topics()?;
         Ok(me)
+    }
+
+    /// Each role whose topic the user named must be in the file, of the role's type, and no
+    /// other role's: `--topic cmd_vel=/nonexistent` (or `=/odom`) read as a session without
+    /// commands, which turned a robot's session into a capture's without a word.
+    fn check_named_topics(&self) -> Result<(), SessionError> {
+        for &role in &self.topics.named {
+            let topic = self.topics.get(role);
+            let err = |what: String| SessionError::NamedTopic {
+                path: self.path.clone(),
+                role: role.key(),
+                topic: topic.to_owned(),
+                what,
+            };
+            let mut channels = self
+                .channels
+                .values()
+                .filter(|c| c.topic == topic)
+                .peekable();
+            if channels.peek().is_none() {
+                let mut names: Vec<&str> =
+                    self.channels.values().map(|c| c.topic.as_str()).collect();
+                names.sort_unstable();
+                names.dedup();
+                return Err(err(format!(
+                    "the file has no such topic (it has: {})",
+                    names.join(", ")
+                )));
+            }
+            if let Some(c) =
+                channels.find(|c| normalize_type(&c.schema_name) != role.message_type())
+            {
+                return Err(err(format!(
+                    "it carries {}; the {} role needs {}",
+                    c.schema_name,
+                    role.key(),
+                    role.message_type()
+                )));
+            }
+            if let Some(other) = Role::ALL
+                .into_iter()
+                .find(|&r| r != role && self.topics.get(r) == topic)
+            {
+                return Err(err(format!("that is the {} topic too", other.key())));
+            }
+        }
+        Ok(())
     }
 
     /// Indexes a session held in memory (the bytes are copied: payloads are read from them
@@ -303,6 +351,7 @@ impl SessionReader {
         let mut input = buf;
         me.scan(&mut input, ends_with_magic)?;
         me.finish();
+        me.check_named_topics()?;
         Ok(me)
     }
 
