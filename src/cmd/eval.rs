@@ -149,7 +149,7 @@ fn print_evals(args: &Args, evals: &[Evaluation]) -> anyhow::Result<()> {
         if evals.len() > 1 {
             say!("comparison:");
             say!(
-                "  {:<40} {:>11} {:>8} {:>7} {:>9} {:>9} {:>9} {:>9}",
+                "  {:<40} {:>21} {:>8} {:>7} {:>9} {:>9} {:>9} {:>9}",
                 "report",
                 "poses",
                 "matched",
@@ -163,7 +163,7 @@ fn print_evals(args: &Args, evals: &[Evaluation]) -> anyhow::Result<()> {
                 |x: Option<f64>| x.map(|x| format!("{x:.3} m")).unwrap_or_else(|| "-".into());
             for e in evals {
                 say!(
-                    "  {:<40} {:>11} {:>8} {:>7} {:>9} {:>9} {:>9} {:>9}",
+                    "  {:<40} {:>21} {:>8} {:>7} {:>9} {:>9} {:>9} {:>9}",
                     e.report,
                     e.poses,
                     e.matches.len(),

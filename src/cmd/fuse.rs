@@ -442,11 +442,13 @@ pub fn print_summary(f: &Fused) {
     );
     if r.grid.storage == Some(GridStorage::Sparse) {
         let g = &f.outcome.grid;
+        // Blocks of 8^3 cells are stored whole, so those at the grid's far edges hold cells
+        // beyond it: a grid touched nearly everywhere stores more cells than it has.
         say!(
-            "sparse grid: {} of {} cells stored ({:.3} %), {} MiB",
+            "sparse grid: {} cells stored in blocks of 512 ({:.1} % of the grid's {} cells; blocks at its far edges reach past it), {} MiB",
             r.grid.stored_cells,
-            g.spec.cells(),
             100.0 * r.grid.stored_cells as f64 / g.spec.cells().max(1) as f64,
+            g.spec.cells(),
             g.stored_bytes().div_ceil(1 << 20)
         );
     }

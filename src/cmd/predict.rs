@@ -58,7 +58,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         );
     }
     let heads = if model.region.is_some() { 2 } else { 1 };
-    let bar = super::progress::frames_bar("predict", args.quiet);
+    let unit = if heads == 2 {
+        "frames x 2 heads"
+    } else {
+        "frames"
+    };
+    let bar = super::progress::counted_bar("predict", unit, args.quiet);
     bar.set_length((session.frames.len() * heads) as u64);
     let pred = model
         .predict_session(&session, &|| bar.inc(1))

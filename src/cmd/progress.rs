@@ -10,13 +10,19 @@ use objloc_core::fuse::replay::{Observer, Stage};
 
 /// A bar counting frames, or a hidden one off a terminal or when `quiet`.
 pub fn frames_bar(message: &str, quiet: bool) -> ProgressBar {
+    counted_bar(message, "frames", quiet)
+}
+
+/// [`frames_bar`] counting `unit` instead of frames (predict classifies each frame once per
+/// head: its count is frames times heads, and called frames it read as twice the session).
+pub fn counted_bar(message: &str, unit: &str, quiet: bool) -> ProgressBar {
     if quiet || !std::io::stderr().is_terminal() {
         return ProgressBar::hidden();
     }
     let bar = ProgressBar::new(0);
-    if let Ok(style) =
-        ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} frames ({per_sec}, eta {eta})")
-    {
+    let template =
+        format!("{{msg}} [{{bar:30}}] {{pos}}/{{len}} {unit} ({{per_sec}}, eta {{eta}})");
+    if let Ok(style) = ProgressStyle::with_template(&template) {
         bar.set_style(style.progress_chars("=> "));
     }
     bar.set_message(message.to_owned());

@@ -264,7 +264,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 
 fn run_sim(a: SimArgs) -> anyhow::Result<()> {
     let scene = match (&a.scene, &a.scene_file) {
-        (Some(name), _) => objloc_core::sim::builtin_scene(name)?,
+        (Some(name), _) => {
+            objloc_core::sim::builtin_scene(name).map_err(|e| UsageError(e.to_string()))?
+        }
         (None, Some(file)) => objloc_core::sim::load_scene(file)?,
         (None, None) => anyhow::bail!("give --scene NAME or --scene-file FILE"),
     };
@@ -285,6 +287,11 @@ fn run_sim(a: SimArgs) -> anyhow::Result<()> {
     let stats = objloc_core::sim::record(&scene, &opts, &a.output, &mut |done, total| {
         bar.set_length(total as u64);
         bar.set_position(done as u64);
+    })
+    .map_err(|e| match e {
+        // Counts beyond what the scene allows (--frames 99 of 8 views): the command line's.
+        objloc_core::sim::SimError::Options(what) => UsageError(what).into(),
+        e => anyhow::Error::new(e),
     })
     .with_context(|| format!("record sim {} to {}", scene.name, a.output.display()))?;
     bar.finish_and_clear();

@@ -332,6 +332,8 @@ fn same_seed_same_bytes_other_seed_other_bytes() {
 
 #[test]
 fn bad_scene_and_options_are_one_line_errors() {
+    // Scene names and counts are the command line's mistakes (exit 2); a scene file that
+    // does not parse is the file's (exit 1).
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("x.mcap");
     let o = objloc(
@@ -348,7 +350,7 @@ fn bad_scene_and_options_are_one_line_errors() {
         &[],
     );
     assert_eq!(
-        one_line_error(&o),
+        usage_error(&o),
         "error: unknown scene \"sofa\"; built-in scenes are chair, bottle, two-chairs"
     );
     let scene = dir.path().join("s.json");
@@ -386,9 +388,31 @@ fn bad_scene_and_options_are_one_line_errors() {
         ],
         &[],
     );
-    let line = one_line_error(&o);
+    let line = usage_error(&o);
     assert!(line.contains("--frames must be 1 to 8, got 99"), "{line}");
     assert!(!out.exists() && !dir.path().join("x.mcap.partial").exists());
+    let o = objloc(
+        &[
+            "record",
+            "sim",
+            "--scene",
+            "chair",
+            "--kind",
+            "tour",
+            "--stops",
+            "1",
+            "-o",
+            p(&out),
+        ],
+        &[],
+    );
+    assert_eq!(
+        usage_error(&o),
+        format!(
+            "error: record sim chair to {}: a tour needs at least 2 stops, got 1",
+            out.display()
+        )
+    );
 }
 
 /// `dir/rgb` holding one single-colour PNG per (file name, width, height, colour).
