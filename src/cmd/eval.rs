@@ -170,13 +170,24 @@ fn print_evals(args: &Args, evals: &[Evaluation]) -> anyhow::Result<()> {
                     e.missed.len(),
                     e.spurious.len(),
                     metres(e.max_error_m()),
-                    metres(e.trajectory.as_ref().map(|t| t.odometry_ate_m)),
+                    metres(
+                        e.trajectory
+                            .as_ref()
+                            .filter(|_| !at_truth(e))
+                            .map(|t| t.odometry_ate_m)
+                    ),
                     metres(e.trajectory.as_ref().map(|t| t.fused_ate_m)),
                 );
             }
         }
     }
     Ok(())
+}
+
+/// Whether the report was fused at the session's true poses (`--poses ground-truth`): its
+/// "odometry" is then the truth, and /odom's error is not in it.
+fn at_truth(e: &Evaluation) -> bool {
+    e.poses.starts_with("ground-truth")
 }
 
 fn print_eval(e: &Evaluation) {
@@ -196,7 +207,14 @@ fn print_eval(e: &Evaluation) {
         );
     }
     say!("  voxel IoU of the thresholded belief: {:.3}", e.voxel_iou);
-    if let Some(t) = &e.trajectory {
+    if let Some(t) = e.trajectory.as_ref().filter(|_| at_truth(e)) {
+        say!(
+            "  trajectory at {} frames: given the true poses (/odom not used); poses fused with ({}): ATE {:.3} m",
+            t.frames,
+            e.poses,
+            t.fused_ate_m
+        );
+    } else if let Some(t) = &e.trajectory {
         say!(
             "  trajectory at {} frames: /odom ATE {:.3} m (max {:.3} m); poses fused with ({}): ATE {:.3} m",
             t.frames,
