@@ -75,6 +75,12 @@ fn evaluate_reports(args: &Args) -> anyhow::Result<()> {
     let Some(gt) = gt else {
         return super::eval_rects::run(&reader, args, &session_sha256);
     };
+    super::usage_check(args.object.is_none(), || {
+        format!(
+            "--object chooses the label rectangles to score against; {} has ground truth, which scores every object",
+            args.session.display()
+        )
+    })?;
     let truth = true_objects(&gt);
     let mut evals = Vec::new();
     for path in &args.reports {

@@ -881,4 +881,41 @@ fn outputs_never_overwrite_inputs_or_each_other() {
         &[],
     ));
     assert!(nested.exists());
+    // eval's --object is for scoring against rectangles; with ground truth it was ignored.
+    let line = usage_error(&objloc(
+        &[
+            "eval",
+            p(&session),
+            "--report",
+            p(&nested),
+            "--object",
+            "bottle",
+        ],
+        &[],
+    ));
+    assert!(
+        line.contains("has ground truth, which scores every object"),
+        "{line}"
+    );
+    // Bounds no view reaches: fused "8 of 8 frames" into an empty grid, now with a warning.
+    let run = objloc(
+        &[
+            "fuse",
+            p(&session),
+            "--model",
+            p(&model),
+            "--no-rerun",
+            "--bounds",
+            "50,50,0,51,51,1",
+            "--voxel",
+            "0.1",
+        ],
+        &[],
+    );
+    ok(&run);
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(
+        err.contains("no frame's view reached a cell of the grid"),
+        "{err}"
+    );
 }

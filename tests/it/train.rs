@@ -528,6 +528,22 @@ fn bad_inputs_fail_with_one_line_and_no_output() {
         assert!(line.contains(name) && line.contains(expect), "{line}");
         assert!(!out_dir.exists());
     }
+    // A fuse report given as the model is named as what it is (it was told to retrain).
+    let report = dir.path().join("r.json");
+    std::fs::write(&report, "{\"report_version\": 5, \"objects\": []}").unwrap();
+    let out_dir = dir.path().join("out");
+    let line = one_line_error(&objloc(
+        &[
+            "predict",
+            p(&train),
+            "--model",
+            p(&report),
+            "--out",
+            p(&out_dir),
+        ],
+        &[],
+    ));
+    assert!(line.contains("is a fuse report, not a model"), "{line}");
 }
 
 /// The tile ROC AUC in what `objloc predict` printed.

@@ -64,7 +64,8 @@ pub struct Summary {
     pub library: String,
     /// Size of the file, bytes.
     pub file_bytes: u64,
-    /// Bytes from the start of the file that were read as intact records.
+    /// Bytes from the start of the file that were read as intact records: the whole file but
+    /// its closing magic (8 bytes) when it is intact, less when it is truncated or damaged.
     pub bytes_intact: u64,
     /// Messages in the file, on every topic.
     pub messages: usize,

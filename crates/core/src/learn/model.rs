@@ -233,6 +233,13 @@ impl Model {
         // The version is checked before the layout, so an old or future file says so instead
         // of naming a missing field.
         let value: serde_json::Value = serde_json::from_slice(&bytes).map_err(json)?;
+        // A fuse report in the model's place is a mix-up of files, not an old model.
+        if value.get("report_version").is_some() && value.get("version").is_none() {
+            return Err(ModelError::Spec {
+                path: path.to_owned(),
+                what: "is a fuse report, not a model (`objloc train -o` writes models)".into(),
+            });
+        }
         match value.get("version").and_then(|v| v.as_u64()) {
             Some(v) if v == MODEL_VERSION as u64 || v == MODEL_VERSION_ONE_TREE as u64 => {}
             other => {

@@ -447,6 +447,17 @@ fn finish(ctx: Context<'_>, pass: Pass, refinement: Option<RefinementCheck>) -> 
     if ctx.options.locate == Locate::Detections {
         locate_from_detections(&ctx, &pass.poses, &mut objects);
     }
+    let mut warnings = ctx.warnings;
+    // Frames "fused" into a grid none of their views reaches leave it at the prior: say why
+    // nothing was found instead of reporting an empty grid as a result.
+    if !pass.per_frame.is_empty() && pass.per_frame.iter().all(|f| f.cells_updated == 0) {
+        warnings.push(format!(
+            "{}: no frame's view reached a cell of the grid (bounds {:?}..{:?}): are the bounds outside what the camera sees?",
+            ctx.data.path,
+            grid.spec.origin_m,
+            grid.spec.max_m()
+        ));
+    }
     Outcome {
         frames_fused: ctx.prepared.len(),
         data: ctx.data,
@@ -454,7 +465,7 @@ fn finish(ctx: Context<'_>, pass: Pass, refinement: Option<RefinementCheck>) -> 
         grid,
         objects,
         per_frame: pass.per_frame,
-        warnings: ctx.warnings,
+        warnings,
         refinement,
         options: ctx.options,
         choices: ctx.choices,
