@@ -675,40 +675,27 @@ fn a_camera_on_a_pan_tilt_head_is_located_through_tf() {
     let (err, stderr) = error_of_session(&without_tf);
     assert!(stderr.contains("a moving mount's /tf missing?"), "{stderr}");
     assert!(err.is_none_or(|e| e > 0.08), "{err:?}");
-    // Naming a topic the file lacks is a mistake, not a session without that role.
-    let line = one_line_error(&objloc(
-        &[
-            "fuse",
-            p(&tour),
-            "--model",
-            p(&model),
-            "--no-rerun",
-            "--topic",
-            "tf=/none",
-        ],
-        &[],
-    ));
-    assert!(
-        line.contains("--topic tf=/none: the file has no such topic"),
-        "{line}"
-    );
-    // So is naming a topic of another type (it read as a session without commands).
-    let line = one_line_error(&objloc(
-        &[
-            "fuse",
-            p(&tour),
-            "--model",
-            p(&model),
-            "--no-rerun",
-            "--topic",
+    // Naming a topic the file lacks, or one of another type, is a mistake, not a session
+    // without that role (cmd_vel=/odom read as a session without commands).
+    for (topic, says) in [
+        ("tf=/none", "--topic tf=/none: the file has no such topic"),
+        (
             "cmd_vel=/odom",
-        ],
-        &[],
-    ));
-    assert!(
-        line.contains("it carries nav_msgs/msg/Odometry; the cmd_vel role needs"),
-        "{line}"
-    );
+            "it carries nav_msgs/msg/Odometry; the cmd_vel role needs",
+        ),
+    ] {
+        let args = [
+            "fuse",
+            p(&tour),
+            "--model",
+            p(&model),
+            "--no-rerun",
+            "--topic",
+            topic,
+        ];
+        let line = one_line_error(&objloc(&args, &[]));
+        assert!(line.contains(says), "{line}");
+    }
 }
 
 /// `src` rewritten to `dst` without the messages of `topic` (every other message, channel

@@ -5,7 +5,7 @@
 //! (scripts/sim_as_capture.py) is located near its true centre with a capture's defaults.
 
 use std::path::{Path, PathBuf};
-use std::process::Command;
+use std::process::{Command, Output};
 use std::time::{Duration, Instant};
 
 use nalgebra::Point3;
@@ -426,43 +426,58 @@ fn image_dir(dir: &Path, images: &[(&str, u32, u32, [u8; 3])]) -> PathBuf {
     rgb
 }
 
+/// Two 32 x 24 frames named by their stamps (100.5 and 101 s) and a two-line TUM trajectory
+/// in `dir`, imported with `labels` (a CSV's text) and `extra` flags into `dir/imp.mcap`:
+/// (images folder, trajectory, session, the import's run).
+fn import_two_frames(
+    dir: &Path,
+    labels: &str,
+    extra: &[&str],
+) -> (PathBuf, PathBuf, PathBuf, Output) {
+    let images = image_dir(
+        dir,
+        &[
+            ("100.50.png", 32, 24, [200, 20, 20]),
+            ("101.00.png", 32, 24, [20, 200, 20]),
+        ],
+    );
+    let traj = dir.join("traj.txt");
+    std::fs::write(
+        &traj,
+        "# timestamp tx ty tz qx qy qz qw\n100.0 0 0 0 0 0 0 1\n101.0 2 0 0 0 0 0 1\n",
+    )
+    .unwrap();
+    let csv = dir.join("labels.csv");
+    std::fs::write(&csv, labels).unwrap();
+    let out = dir.join("imp.mcap");
+    let mut args = vec![
+        "record",
+        "import",
+        "--images",
+        p(&images),
+        "--trajectory",
+        p(&traj),
+        "--camera",
+        "30,31,16,12",
+        "--labels",
+        p(&csv),
+        "-o",
+        p(&out),
+    ];
+    args.extend_from_slice(extra);
+    let run = objloc(&args, &[]);
+    (images, traj, out, run)
+}
+
 /// `inspect` counts frames, as `record import` does: two objects boxed in one frame are one
 /// labelled frame (it counted the two label messages), a frame with only empty labels a
 /// background frame.
 #[test]
 fn inspect_counts_labelled_frames_not_label_messages() {
     let dir = tempfile::tempdir().unwrap();
-    let images = image_dir(
+    let (_, _, out, run) = import_two_frames(
         dir.path(),
-        &[
-            ("100.50.png", 32, 24, [200, 20, 20]),
-            ("101.00.png", 32, 24, [20, 200, 20]),
-        ],
-    );
-    let traj = dir.path().join("traj.txt");
-    std::fs::write(&traj, "100.0 0 0 0 0 0 0 1\n101.0 2 0 0 0 0 0 1\n").unwrap();
-    let labels = dir.path().join("labels.csv");
-    std::fs::write(
-        &labels,
         "image,x,y,width,height,object\n100.50.png,4,5,10,8,cup\n100.50.png,16,5,8,8,plate\n101.00.png,,,,,cup\n",
-    )
-    .unwrap();
-    let out = dir.path().join("two.mcap");
-    let run = objloc(
-        &[
-            "record",
-            "import",
-            "--images",
-            p(&images),
-            "--trajectory",
-            p(&traj),
-            "--camera",
-            "30,31,16,12",
-            "--labels",
-            p(&labels),
-            "-o",
-            p(&out),
-        ],
         &[],
     );
     ok(&run);
@@ -479,45 +494,12 @@ fn inspect_counts_labelled_frames_not_label_messages() {
 fn import_tum_sequence_with_labels() {
     let dir = tempfile::tempdir().unwrap();
     // File stems are timestamps: matched by interpolating the trajectory.
-    let images = image_dir(
+    let (images, traj, out, run) = import_two_frames(
         dir.path(),
-        &[
-            ("100.50.png", 32, 24, [200, 20, 20]),
-            ("101.00.png", 32, 24, [20, 200, 20]),
-        ],
-    );
-    let traj = dir.path().join("traj.txt");
-    std::fs::write(
-        &traj,
-        "# timestamp tx ty tz qx qy qz qw\n100.0 0 0 0 0 0 0 1\n101.0 2 0 0 0 0 0 1\n",
-    )
-    .unwrap();
-    let labels = dir.path().join("labels.csv");
-    std::fs::write(
-        &labels,
         "image,x,y,width,height\n100.50.png,4,5,10,8\n101.00.png,,,,\n",
-    )
-    .unwrap();
-    let out = dir.path().join("imp.mcap");
-    ok(&objloc(
-        &[
-            "record",
-            "import",
-            "--images",
-            p(&images),
-            "--trajectory",
-            p(&traj),
-            "--camera",
-            "30,31,16,12",
-            "--labels",
-            p(&labels),
-            "--object",
-            "cup",
-            "-o",
-            p(&out),
-        ],
-        &[],
-    ));
+        &["--object", "cup"],
+    );
+    ok(&run);
     let reader = SessionReader::open(&out, Topics::default()).unwrap();
     let mut odom_x = Vec::new();
     let mut regions = Vec::new();
