@@ -338,24 +338,31 @@ pub fn fuse(
     Ok(Fused { outcome, report })
 }
 
-/// The grid's flags as a usage error before any file is read: the grid refused them later,
-/// and the message then named the session as if it were to blame.
+/// The grid's flags, checked by the grid's own rules before any file is read, as usage
+/// errors: the grid refused them later, and the message then named the session as if it
+/// were to blame.
 fn check_grid_flags(args: &FuseArgs) -> anyhow::Result<()> {
+    use objloc_core::fuse::grid::{MIN_PRIOR, check_bounds, check_prior, check_voxel};
+    let usage = |what: String| anyhow::Error::new(super::UsageError(what));
     if let Some(v) = args.voxel {
-        super::usage_check(v.is_finite() && v > 0.0, || {
-            format!("--voxel {v} must be a positive number (the session's units)")
+        check_voxel(v).map_err(|_| {
+            usage(format!(
+                "--voxel {v} must be a positive number (the session's units)"
+            ))
         })?;
     }
     if let Some((lo, hi)) = args.bounds {
-        super::usage_check(
-            (0..3).all(|a| lo[a].is_finite() && hi[a].is_finite() && lo[a] < hi[a]),
-            || format!("--bounds: min {lo:?} must be below max {hi:?} on every axis"),
-        )?;
+        check_bounds(lo, hi).map_err(|_| {
+            usage(format!(
+                "--bounds: min {lo:?} must be below max {hi:?} on every axis"
+            ))
+        })?;
     }
     if let Some(prior) = args.prior {
-        let min = objloc_core::fuse::grid::MIN_PRIOR;
-        super::usage_check((min..=1.0 - min).contains(&prior), || {
-            format!("--prior {prior} must lie within [{min:e}, 1 - {min:e}]")
+        check_prior(prior).map_err(|_| {
+            usage(format!(
+                "--prior {prior} must lie within [{MIN_PRIOR:e}, 1 - {MIN_PRIOR:e}]"
+            ))
         })?;
     }
     Ok(())

@@ -186,24 +186,37 @@ fn pose_file(a: &ImportArgs) -> anyhow::Result<PoseFile> {
 /// them through when another member of the pose-file group is given, and they were then
 /// silently ignored.
 fn check_qualifiers(a: &ImportArgs) -> anyhow::Result<()> {
-    let given: [(&str, bool, bool); 4] = [
-        ("--camera", a.camera.is_some(), a.trajectory.is_some()),
+    const TUM_ONLY: &str =
+        "is only for --trajectory: the other pose files carry the camera's intrinsics and lens";
+    // (flag, given, allowed with the pose source given, why not)
+    let qualifiers = [
+        (
+            "--camera",
+            a.camera.is_some(),
+            a.trajectory.is_some(),
+            TUM_ONLY,
+        ),
         (
             "--distortion",
             a.distortion.is_some(),
             a.trajectory.is_some(),
+            TUM_ONLY,
         ),
-        ("--crop", a.crop.is_some(), a.idr.is_some()),
-        ("--images", a.images.is_some(), a.nerf.is_none()),
+        (
+            "--crop",
+            a.crop.is_some(),
+            a.idr.is_some(),
+            "is only for --idr: the other pose files give the intrinsics of the images as they are",
+        ),
+        (
+            "--images",
+            a.images.is_some(),
+            a.nerf.is_none(),
+            "is not for --nerf: transforms.json names each image, relative to itself",
+        ),
     ];
-    for (flag, present, allowed) in given {
-        usage_check(!present || allowed, || {
-            match flag {
-            "--images" => "--images is not for --nerf: transforms.json names each image, relative to itself".into(),
-            "--crop" => "--crop is only for --idr: the other pose files give the intrinsics of the images as they are".into(),
-            _ => format!("{flag} is only for --trajectory: the other pose files carry the camera's intrinsics and lens"),
-        }
-        })?;
+    for (flag, given, allowed, why) in qualifiers {
+        usage_check(!given || allowed, || format!("{flag} {why}"))?;
     }
     Ok(())
 }

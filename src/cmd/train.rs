@@ -208,6 +208,11 @@ fn check_tiles(cfg: &TrainConfig) -> anyhow::Result<()> {
     )
 }
 
+/// Where the recording goes without a Rerun flag: beside the model, as `.rrd`.
+fn default_recording(args: &Args) -> std::path::PathBuf {
+    args.output.with_extension("rrd")
+}
+
 /// The tree as a graph and the training frames with their maps, in Rerun (by default beside
 /// the model).
 fn log_to_rerun(args: &Args, model: &Model, sessions: &[LoadedSession]) -> anyhow::Result<()> {
@@ -218,7 +223,7 @@ fn log_to_rerun(args: &Args, model: &Model, sessions: &[LoadedSession]) -> anyho
     );
     let stream = crate::viz::open_stream(
         &args.rerun,
-        &args.output.with_extension("rrd"),
+        &default_recording(args),
         &id,
         Some(crate::viz::train_blueprint()),
     )
@@ -305,7 +310,7 @@ fn fit_to_sessions(
 pub fn run(args: Args) -> anyhow::Result<()> {
     let topics = args.topics.topics()?;
     let mut cfg = config(&args)?;
-    let recording = args.rerun.file(&args.output.with_extension("rrd"));
+    let recording = args.rerun.file(&default_recording(&args));
     let mut outputs = vec![("-o", args.output.as_path())];
     outputs.extend(recording.as_ref().map(|(what, p)| (*what, p.as_path())));
     let inputs: Vec<(&str, &std::path::Path)> = args

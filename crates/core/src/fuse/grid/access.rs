@@ -22,9 +22,7 @@ impl Grid {
         storage: GridStorage,
         budget: Budget,
     ) -> Result<Self, GridError> {
-        if !((MIN_PRIOR..=1.0 - MIN_PRIOR).contains(&prior)) {
-            return Err(GridError::Prior { prior });
-        }
+        super::check_prior(prior)?;
         let storage = storage.resolve(&spec);
         let bdims = block_dims(spec.dims);
         let nblocks: usize = bdims.iter().product();

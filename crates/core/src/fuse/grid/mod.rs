@@ -204,17 +204,40 @@ fn mib(bytes: f64) -> u64 {
     (bytes / f64::from(1u32 << 20)).ceil() as u64
 }
 
+/// [`GridError::Voxel`] unless the voxel size is positive and finite.
+pub fn check_voxel(voxel_size_m: f64) -> Result<(), GridError> {
+    if voxel_size_m.is_finite() && voxel_size_m > 0.0 {
+        Ok(())
+    } else {
+        Err(GridError::Voxel { voxel_size_m })
+    }
+}
+
+/// [`GridError::Bounds`] unless `min` is below `max` on every axis, all finite.
+pub fn check_bounds(min: [f64; 3], max: [f64; 3]) -> Result<(), GridError> {
+    if (0..3).all(|a| min[a].is_finite() && max[a].is_finite() && min[a] < max[a]) {
+        Ok(())
+    } else {
+        Err(GridError::Bounds { min, max })
+    }
+}
+
+/// [`GridError::Prior`] unless [`MIN_PRIOR`] <= `prior` <= 1 - [`MIN_PRIOR`].
+pub fn check_prior(prior: f64) -> Result<(), GridError> {
+    if (MIN_PRIOR..=1.0 - MIN_PRIOR).contains(&prior) {
+        Ok(())
+    } else {
+        Err(GridError::Prior { prior })
+    }
+}
+
 impl GridSpec {
     /// The smallest grid of `voxel_size_m` cells covering [min, max]; refused when even its
     /// table of blocks would need more than [`MAX_GRID_BYTES`] (whether its cells fit is for
     /// [`Grid::with_storage`] to say).
     pub fn from_bounds(min: [f64; 3], max: [f64; 3], voxel_size_m: f64) -> Result<Self, GridError> {
-        if !(voxel_size_m.is_finite() && voxel_size_m > 0.0) {
-            return Err(GridError::Voxel { voxel_size_m });
-        }
-        if !(0..3).all(|a| min[a].is_finite() && max[a].is_finite() && min[a] < max[a]) {
-            return Err(GridError::Bounds { min, max });
-        }
+        check_voxel(voxel_size_m)?;
+        check_bounds(min, max)?;
         let n = |a: usize| ((max[a] - min[a]) / voxel_size_m - 1e-9).ceil().max(1.0);
         let (nx, ny, nz) = (n(0), n(1), n(2));
         let blocks: f64 = [nx, ny, nz]

@@ -435,10 +435,8 @@ fn encoded_of(path: &Path) -> Result<(&'static str, Vec<u8>, u32, u32), ImportEr
     let (w, h) = (img.width(), img.height());
     if bytes.starts_with(&[0xFF, 0xD8, 0xFF]) {
         if !crate::io::session::jpeg_is_complete(&bytes) {
-            return Err(invalid(format!(
-                "JPEG of {} bytes ends inside its image data (no end-of-image marker): truncated",
-                bytes.len()
-            )));
+            let cut = crate::io::session::FrameError::TruncatedJpeg { bytes: bytes.len() };
+            return Err(invalid(cut.to_string()));
         }
         return Ok(("jpeg", bytes, w, h));
     }

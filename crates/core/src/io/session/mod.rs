@@ -427,12 +427,14 @@ fn jpeg_is_upright(data: &[u8]) -> bool {
 /// marker), so a file cut inside its last scan has none after it, whatever comes before (an
 /// EXIF thumbnail's own EOI precedes the main image's scans). Bytes after the EOI are allowed.
 pub(crate) fn jpeg_is_complete(data: &[u8]) -> bool {
-    let last = |marker: u8| data.windows(2).rposition(|w| w == [0xFF, marker]);
-    match (last(0xDA), last(0xD9)) {
-        (Some(sos), Some(eoi)) => eoi > sos,
-        // No scan at all: the decoder's own error says what is wrong.
-        (None, _) => true,
-        (Some(_), None) => false,
+    let has_scan = |bytes: &[u8]| bytes.windows(2).any(|w| w == [0xFF, 0xDA]);
+    // Searched from the end, where a whole file's marker is: every frame decoded passes here,
+    // and only the bytes after the last EOI (usually none) are searched for a scan.
+    match data.windows(2).rposition(|w| w == [0xFF, 0xD9]) {
+        Some(eoi) => !has_scan(&data[eoi + 2..]),
+        // No end marker: cut short if it has a scan; without one, the decoder's own error
+        // says what is wrong.
+        None => !has_scan(data),
     }
 }
 
