@@ -241,6 +241,9 @@ impl FuseArgs {
 pub struct Fused {
     pub outcome: Outcome,
     pub report: Report,
+    /// How far from the camera a frame's update reaches (`--max-footprint`), metres; None
+    /// without a limit.
+    pub update_range_m: Option<f64>,
 }
 
 /// Loads the model and session, replays, and builds the report.
@@ -335,7 +338,19 @@ pub fn fuse(
         model_sha256,
         timing,
     );
-    Ok(Fused { outcome, report })
+    let update_range_m = outcome.options.max_footprint_voxels.map(|n| {
+        objloc_core::fuse::grid::max_depth_m(
+            &outcome.data.camera,
+            model.tile_px,
+            outcome.grid.spec.voxel_size_m,
+            Some(n),
+        )
+    });
+    Ok(Fused {
+        outcome,
+        report,
+        update_range_m,
+    })
 }
 
 /// The grid's flags, checked by the grid's own rules before any file is read, as usage
@@ -465,6 +480,14 @@ pub fn print_summary(f: &Fused) {
     }
     if r.objects.is_empty() {
         say!("no object found");
+        // A fine voxel shortens the range (a tile's footprint grows with depth): 0.005 m
+        // cells stop a frame's update about a metre from the camera.
+        if let (Some(d), Some(n)) = (f.update_range_m, r.options.max_footprint_voxels) {
+            say!(
+                "  a frame's update stops {d:.2}{m} from the camera (--max-footprint {n} cells of {}{m}): an object further away needs a larger --voxel or --max-footprint (or off)",
+                objloc_core::out::report::significant(r.grid.voxel_size_m, 5),
+            );
+        }
     }
     for (i, o) in r.objects.iter().enumerate() {
         say!(

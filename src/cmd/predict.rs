@@ -64,7 +64,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "frames"
     };
     let bar = super::progress::counted_bar("predict", unit, args.quiet);
-    bar.set_length((session.frames.len() * heads) as u64);
+    super::progress::set_counts(&bar, 0, session.frames.len() * heads);
     let pred = model
         .predict_session(&session, &|| bar.inc(1))
         .context("predict: classifying frames")?;

@@ -4,7 +4,7 @@
 
 use std::io::IsTerminal;
 
-use indicatif::{ProgressBar, ProgressStyle};
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
 use objloc_core::fuse::replay::{Observer, Stage};
 
@@ -15,11 +15,13 @@ pub fn frames_bar(message: &str, quiet: bool) -> ProgressBar {
 
 /// [`frames_bar`] counting `unit` instead of frames (predict classifies each frame once per
 /// head: its count is frames times heads, and called frames it read as twice the session).
+/// It stays undrawn until [`set_counts`] gives it a total, so that it never shows "0/0".
 pub fn counted_bar(message: &str, unit: &str, quiet: bool) -> ProgressBar {
     if quiet || !std::io::stderr().is_terminal() {
         return ProgressBar::hidden();
     }
-    let bar = ProgressBar::new(0);
+    // No length yet (a hidden bar's is Some(0)): what marks a bar waiting to be drawn.
+    let bar = ProgressBar::with_draw_target(None, ProgressDrawTarget::hidden());
     let template =
         format!("{{msg}} [{{bar:30}}] {{pos}}/{{len}} {unit} ({{per_sec}}, eta {{eta}})");
     if let Ok(style) = ProgressStyle::with_template(&template) {
@@ -27,6 +29,17 @@ pub fn counted_bar(message: &str, unit: &str, quiet: bool) -> ProgressBar {
     }
     bar.set_message(message.to_owned());
     bar
+}
+
+/// Sets a [`counted_bar`]'s count, drawing it from the first call with a total.
+pub fn set_counts(bar: &ProgressBar, done: usize, total: usize) {
+    if total > 0 && bar.length().is_none() {
+        bar.set_draw_target(ProgressDrawTarget::stderr());
+    }
+    if total > 0 || bar.length().is_some() {
+        bar.set_length(total as u64);
+    }
+    bar.set_position(done as u64);
 }
 
 /// A spinner naming the stage a command is in (for stages without a frame count), or a
@@ -71,8 +84,7 @@ impl Observer for ReplayProgress {
         if self.bar.message() != message {
             self.bar.set_message(message);
         }
-        self.bar.set_length(total as u64);
-        self.bar.set_position(done as u64);
+        set_counts(&self.bar, done, total);
     }
 }
 

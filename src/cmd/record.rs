@@ -298,8 +298,7 @@ fn run_sim(a: SimArgs) -> anyhow::Result<()> {
     let bar = progress_bar(a.quiet);
     bar.set_message(format!("{} {:?}", scene.name, a.kind).to_lowercase());
     let stats = objloc_core::sim::record(&scene, &opts, &a.output, &mut |done, total| {
-        bar.set_length(total as u64);
-        bar.set_position(done as u64);
+        super::progress::set_counts(&bar, done, total);
     })
     .map_err(|e| match e {
         // Counts beyond what the scene allows (--frames 99 of 8 views): the command line's.
@@ -308,7 +307,7 @@ fn run_sim(a: SimArgs) -> anyhow::Result<()> {
     })
     .with_context(|| format!("record sim {} to {}", scene.name, a.output.display()))?;
     bar.finish_and_clear();
-    eprintln!(
+    println!(
         "wrote {} ({} frames, {} messages)",
         stats.path.display(),
         stats.frames,
@@ -338,12 +337,12 @@ fn run_import(a: ImportArgs) -> anyhow::Result<()> {
     let bar = progress_bar(a.quiet);
     bar.set_message("import");
     let stats = objloc_core::io::import::import(&opts, &a.output, &mut |done, total| {
-        bar.set_length(total as u64);
-        bar.set_position(done as u64);
+        super::progress::set_counts(&bar, done, total);
     })
     .with_context(|| format!("record import to {}", a.output.display()))?;
     bar.finish_and_clear();
-    eprintln!(
+    // The result on stdout like every command's; notes on stderr with the warnings.
+    println!(
         "wrote {} ({} frames, {} labelled; matched {})",
         stats.path.display(),
         stats.frames,
@@ -361,7 +360,7 @@ fn run_import(a: ImportArgs) -> anyhow::Result<()> {
         eprintln!("note: {note}");
     }
     if stats.distorted > 0 {
-        eprintln!(
+        println!(
             "{} frames carry lens distortion (CameraInfo d, plumb_bob); the replay rectifies them",
             stats.distorted
         );

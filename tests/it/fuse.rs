@@ -905,4 +905,11 @@ fn outputs_never_overwrite_inputs_or_each_other() {
         err.contains("no frame's view reached a cell of the grid"),
         "{err}"
     );
+    // With nothing found, the update's range is named: 8 cells of 0.1 m at fx 221.70 over
+    // 8 px tiles is 8 x 0.1 x 221.70 / 8 = 22.17 m (a 0.005 m voxel's is 1.11 m).
+    let out = String::from_utf8_lossy(&run.stdout);
+    assert!(
+        out.contains("no object found\n  a frame's update stops 22.17 m from the camera (--max-footprint 8 cells of 0.1 m)"),
+        "{out}"
+    );
 }

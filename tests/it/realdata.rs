@@ -37,15 +37,15 @@ fn the_phone_capture_imports_with_its_distortion_and_two_objects_per_frame() {
         p(&out),
     ];
     let run = objloc(&args, &[]);
-    let stderr = String::from_utf8_lossy(&run.stderr).to_string();
+    let stdout = String::from_utf8_lossy(&run.stdout).to_string();
     ok(&run);
     assert!(
-        stderr.contains("(81 frames, 81 labelled; matched in order)"),
-        "{stderr}"
+        stdout.contains("(81 frames, 81 labelled; matched in order)"),
+        "{stdout}"
     );
     assert!(
-        stderr.contains("81 frames carry lens distortion"),
-        "{stderr}"
+        stdout.contains("81 frames carry lens distortion"),
+        "{stdout}"
     );
     let inspect = ok(&objloc(&["inspect", p(&out)], &[]));
     assert!(inspect.contains("/labels"), "{inspect}");

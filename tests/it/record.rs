@@ -481,7 +481,7 @@ fn inspect_counts_labelled_frames_not_label_messages() {
         &[],
     );
     ok(&run);
-    let said = String::from_utf8_lossy(&run.stderr);
+    let said = String::from_utf8_lossy(&run.stdout);
     assert!(said.contains("2 frames, 2 labelled"), "{said}");
     let j: serde_json::Value =
         serde_json::from_str(&ok(&objloc(&["inspect", "--json", p(&out)], &[]))).unwrap();
@@ -619,12 +619,21 @@ fn tum_import(dir: &Path, names: &[&str], lines: &str) -> (PathBuf, String) {
         &[],
     );
     ok(&o);
-    (out, String::from_utf8_lossy(&o.stderr).into_owned())
+    (out, said(&o))
+}
+
+/// What a command said: its stdout (the result), then its stderr (notes and warnings).
+fn said(o: &std::process::Output) -> String {
+    format!(
+        "{}{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    )
 }
 
 /// Imports `names` (image k red (k + 1) * 20) against a trajectory of lines at `times` with
 /// x = k + 1, and returns, per frame in the session, (red / 20, the /odom x at its stamp),
-/// and stderr.
+/// and what the import said.
 fn tum_pairs(names: &[&str], times: &[f64]) -> (Vec<(u8, f64)>, String) {
     let dir = tempfile::tempdir().unwrap();
     let lines: String = times
@@ -796,7 +805,7 @@ fn import_errors_name_file_and_line() {
     // And the good case, in order.
     let o = objloc(&args(&traj, &[]), &[]);
     ok(&o);
-    assert!(String::from_utf8_lossy(&o.stderr).contains("matched in order"));
+    assert!(String::from_utf8_lossy(&o.stdout).contains("matched in order"));
 }
 
 /// `session` written as a capture comes (scripts/sim_as_capture.py) into `dir/name`, then
@@ -833,7 +842,7 @@ fn as_capture(dir: &Path, session: &Path, name: &str) -> PathBuf {
     let run = objloc(&args, &[]);
     ok(&run);
     // The image names are the frames' stamps, within the trajectory: posed at them.
-    let said = String::from_utf8_lossy(&run.stderr);
+    let said = String::from_utf8_lossy(&run.stdout);
     assert!(said.contains("matched by file-name timestamps"), "{said}");
     imported
 }
