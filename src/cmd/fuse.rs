@@ -556,15 +556,10 @@ fn print_refinement(r: &Report) {
         .iter()
         .map(|(v, n)| format!("{n} {}", v.label()))
         .collect();
-    let against = if !r.options.refine_floor {
-        "the objects".to_owned()
+    let against = if r.options.refine_floor {
+        "the objects and the floor"
     } else {
-        match r.refinement.as_ref().and_then(|c| c.floor_dropped_at) {
-            Some(k) => {
-                format!("the objects and the floor (floor dropped from frame {k}: it did not fit)")
-            }
-            None => "the objects and the floor".to_owned(),
-        }
+        "the objects"
     };
     say!(
         "poses refined against {against}: {} of {} frames: {}; at most {max_m:.3} m and {max_deg:.1} deg from odometry",

@@ -8,7 +8,7 @@ use super::*;
 
 /// Compares how well the refined poses and the /odom poses explain the frames: the rays
 /// through every frame's detections, gathered per final object and triangulated, and the
-/// floor the frames saw (when the floor term was used to the end).
+/// floor the frames saw (with the floor term).
 pub(super) fn check_refinement(ctx: &Context<'_>, pass: &Pass) -> RefinementCheck {
     let data = &ctx.data;
     let objects = find_objects(&pass.fuser.grid, &pass.fuser.options.objects);
@@ -35,7 +35,6 @@ pub(super) fn check_refinement(ctx: &Context<'_>, pass: &Pass) -> RefinementChec
     let floor = pass
         .floor_check
         .as_ref()
-        .filter(|_| pass.floor_dropped_at.is_none())
         .map(|c| [c.fused.disagreement(), c.odometry.disagreement()]);
     // Each kind of evidence can be worse at the refined poses while the other is better: on
     // a tour whose /odom drift is a turn about the object, the rays meet as well at /odom, and
@@ -64,7 +63,6 @@ pub(super) fn check_refinement(ctx: &Context<'_>, pass: &Pass) -> RefinementChec
         refined_rays: refined,
         odometry_rays: odom,
         floor_disagreement: floor,
-        floor_dropped_at: pass.floor_dropped_at,
         detections_only,
         rolled_back,
         reason: if !rolled_back {
@@ -94,10 +92,8 @@ pub struct RefinementCheck {
     /// The same rays at the /odom poses.
     pub odometry_rays: Consistency,
     /// Mean disagreement of the floor across views (variance over the colour noise), at the
-    /// refined and at the /odom poses; absent when the floor term was not used to the end.
+    /// refined and at the /odom poses; absent without the floor term (`--no-floor`).
     pub floor_disagreement: Option<[f64; 2]>,
-    /// The frame from which the floor term was dropped because the floor no longer fit.
-    pub floor_dropped_at: Option<usize>,
     /// Frames whose applied correction came from the detections alone (no floor cell): the
     /// rays this check compares are the evidence those poses were fitted to, so it cannot
     /// show them worse than /odom. Empty when rolled back. Measured on 48 simulated tours

@@ -29,7 +29,7 @@ pub use fit::{
     FITTED_CELLS_LONGEST_SIDE, Fitted, SessionFit, axes_convergence, fit_to_session, view_bounds,
 };
 pub use fuser::Fuser;
-pub use pass::{CORRECTION_RETENTION, FLOOR_FAILURE_WINDOW_FRAMES, MAX_FLOOR_FAILURES};
+pub use pass::CORRECTION_RETENTION;
 pub use session_data::{
     DEFAULT_BOUNDS_MARGIN_M, DEFAULT_MIN_SIDE_M, FrameRef, SessionData, load_session,
 };

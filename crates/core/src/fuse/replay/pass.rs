@@ -20,8 +20,6 @@ pub(super) struct Pass {
     pub(super) fuser: Fuser,
     pub(super) poses: Vec<Iso3>,
     pub(super) per_frame: Vec<FrameSummary>,
-    /// The frame from which the floor term was dropped (it no longer fit), if it was.
-    pub(super) floor_dropped_at: Option<usize>,
     /// Every frame's floor at the poses this pass fused it with and at /odom's, when the
     /// floor term is used: what the check of the refinement compares (built frame by frame,
     /// so that no pass holds every frame's patch).
@@ -62,8 +60,6 @@ struct Tracker {
     /// Rays through the detections of the frames fused so far.
     pub(super) seen: Vec<Sighting>,
     pub(super) floor_map: Option<FloorMap>,
-    /// The frames whose floor did not fit the map.
-    pub(super) floor_failures: FloorFailures,
     /// Covariance of /odom's error since the first frame (the total correction's gate).
     pub(super) total_cov: nalgebra::Matrix3<f64>,
     /// Floor patches made ahead of their frames (at most
@@ -73,39 +69,6 @@ struct Tracker {
     /// localises against them once the rule's view count is reached, instead of finding
     /// them again in the same grid.
     pub(super) last_objects: Vec<Object>,
-}
-
-/// A replay stops using the floor once this many frames' floors did not fit the map at
-/// their best pose ([`crate::fuse::refine::MIN_FLOOR_FIT`]): the camera is then not looking at a
-/// floor but at furniture, a counter or a wall in front of it. One such frame alone is
-/// common on our own tours (a table in view, a frame close to the object); two were not seen
-/// on any of them (docs/fuser.md). The failures must fall within
-/// [`FLOOR_FAILURE_WINDOW_FRAMES`] frames of each other.
-pub const MAX_FLOOR_FAILURES: usize = 2;
-
-/// The frames within which [`MAX_FLOOR_FAILURES`] failures drop the floor. A camera that faces
-/// furniture instead of floor fails frame after frame (the foreign rooms from their second
-/// frame on); a long tour meets a table now and then. Counted over the whole replay, two
-/// such frames 160 apart dropped the floor of a 5 000-frame tour at frame 288, after which
-/// nothing corrected its /odom drift (ATE 1.19 m) and the chair was missed. Every tour of
-/// the accuracy sets has fewer frames than this, so none is affected.
-pub const FLOOR_FAILURE_WINDOW_FRAMES: usize = 50;
-
-/// The latest frames whose floor did not fit the map, [`MAX_FLOOR_FAILURES`] at most.
-#[derive(Debug, Default)]
-pub(super) struct FloorFailures(Vec<usize>);
-
-impl FloorFailures {
-    /// Counts a failure at frame `index` (frames in increasing order); true when it is the
-    /// last of [`MAX_FLOOR_FAILURES`] within [`FLOOR_FAILURE_WINDOW_FRAMES`] frames.
-    pub(super) fn drops_floor_at(&mut self, index: usize) -> bool {
-        self.0.push(index);
-        if self.0.len() > MAX_FLOOR_FAILURES {
-            self.0.remove(0);
-        }
-        self.0.len() == MAX_FLOOR_FAILURES
-            && index.saturating_sub(self.0[0]) < FLOOR_FAILURE_WINDOW_FRAMES
-    }
 }
 
 /// One pass over the frames; `rolled_back` is the refined pass this one replaces at /odom,
@@ -134,13 +97,11 @@ pub(super) fn run_pass(
         fuser,
         poses: Vec::with_capacity(ctx.prepared.len()),
         per_frame: Vec::with_capacity(ctx.prepared.len()),
-        floor_dropped_at: None,
         floor_check,
     };
     let mut tracker = Tracker {
         seen: Vec::new(),
         floor_map,
-        floor_failures: FloorFailures::default(),
         total_cov: nalgebra::Matrix3::zeros(),
         floor_ahead: BTreeMap::new(),
         last_objects: Vec::new(),
@@ -301,7 +262,7 @@ fn ready_frame(
 }
 
 /// Localises frame `index` (refining; `prev` is the frame before it): propagates the total
-/// gate's covariance, searches, applies the verdict and keeps the floor's failures. Returns
+/// gate's covariance, searches and applies the verdict. Returns
 /// the correction and whether the frame's floor did not fit (then it is not added to the map).
 fn localise_frame(
     ctx: &Context<'_>,
@@ -335,13 +296,11 @@ fn localise_frame(
     };
     let (c, predicted) = localise(ctx, options, pass, tracker, index, &gate, floor);
     pass.poses.push(c.apply(&predicted));
+    // A frame whose floor does not fit is aligned to the objects alone, and its floor is not
+    // added to the map: what it shows is not the floor the map holds. The next frame's floor
+    // is tried again (see `MIN_FLOOR_FIT`).
     if tracker.floor_map.is_some() && c.floor_fit.is_some_and(|f| f[0] < MIN_FLOOR_FIT) {
-        // Nor is it added to the map: what it shows is not the floor the map holds.
         floor_unfit = true;
-        if tracker.floor_failures.drops_floor_at(index) {
-            tracker.floor_map = None;
-            pass.floor_dropped_at = Some(index);
-        }
     }
     (c, floor_unfit)
 }
@@ -520,33 +479,4 @@ fn fuse_one(
     fuser.last_cells_updated =
         fuser.integrate(&odom_from_camera, &odom_from_base, &data.camera, &p.probs())?;
     Ok(segments)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// Two failures drop the floor only within the window: the 5 000-frame tour's sporadic
-    /// ones (frames 128 and 288) do not, a camera facing furniture (frames 2 and 3) does, and
-    /// the window's edge is exact.
-    #[test]
-    fn floor_failures_count_within_the_window() {
-        let drops = |frames: &[usize]| {
-            let mut f = FloorFailures::default();
-            frames
-                .iter()
-                .map(|&i| f.drops_floor_at(i))
-                .collect::<Vec<_>>()
-        };
-        assert_eq!(drops(&[128, 288]), [false, false]);
-        assert_eq!(drops(&[2, 3]), [false, true]);
-        assert_eq!(
-            drops(&[128, 288, 1062, 2230, 2268]),
-            [false, false, false, false, true]
-        );
-        let w = FLOOR_FAILURE_WINDOW_FRAMES;
-        assert_eq!(drops(&[10, 10 + w - 1]), [false, true]);
-        assert_eq!(drops(&[10, 10 + w]), [false, false]);
-        assert_eq!(drops(&[0, 100, 100 + w - 1]), [false, false, true]);
-    }
 }
