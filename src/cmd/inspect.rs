@@ -56,7 +56,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             eprintln!("warning: {w}");
         }
     } else {
-        print!("{text}");
+        super::say_part!("{text}");
     }
     Ok(())
 }

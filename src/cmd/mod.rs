@@ -26,20 +26,29 @@ use crate::viz::Target;
 /// the Rerun recording, and one line of text in it makes the file unreadable to Rerun.
 static TEXT_TO_STDERR: AtomicBool = AtomicBool::new(false);
 
-/// Whether [`say!`] writes to stderr.
-pub(crate) fn text_to_stderr() -> bool {
-    TEXT_TO_STDERR.load(Ordering::Relaxed)
+/// The first error writing the command's text, if any: the command goes on (its files are
+/// what matter) and then fails with it, instead of panicking half-way as `println!` does.
+static TEXT_ERROR: std::sync::OnceLock<String> = std::sync::OnceLock::new();
+
+/// Writes the command's text where [`say!`] says, keeping the first failure for the exit.
+pub(crate) fn write_text(args: std::fmt::Arguments<'_>) {
+    use std::io::Write;
+    let (result, stream) = if TEXT_TO_STDERR.load(Ordering::Relaxed) {
+        (std::io::stderr().lock().write_fmt(args), "stderr")
+    } else {
+        (std::io::stdout().lock().write_fmt(args), "stdout")
+    };
+    if let Err(e) = result {
+        let _ = TEXT_ERROR.set(format!("writing to {stream}: {e}"));
+    }
 }
 
 /// `println!` for a command's report to the user: on stdout, unless stdout carries the
-/// Rerun recording (`--stdout`), then on stderr.
+/// Rerun recording (`--stdout`), then on stderr. A failed write does not panic as `println!`
+/// does (stdout on a full disk): see [`write_text`].
 macro_rules! say {
     ($($arg:tt)*) => {
-        if $crate::cmd::text_to_stderr() {
-            eprintln!($($arg)*)
-        } else {
-            println!($($arg)*)
-        }
+        $crate::cmd::write_text(format_args!("{}\n", format_args!($($arg)*)))
     };
 }
 pub(crate) use say;
@@ -47,11 +56,7 @@ pub(crate) use say;
 /// [`say!`] without the newline.
 macro_rules! say_part {
     ($($arg:tt)*) => {
-        if $crate::cmd::text_to_stderr() {
-            eprint!($($arg)*)
-        } else {
-            print!($($arg)*)
-        }
+        $crate::cmd::write_text(format_args!($($arg)*))
     };
 }
 pub(crate) use say_part;
@@ -176,6 +181,9 @@ pub(crate) fn prepare_outputs(
         }
     }
     for (flag, path) in outputs {
+        if let Err(e) = objloc_core::io::output::destination(path) {
+            return Err(UsageError(format!("{flag} {}: {e}", path.display())).into());
+        }
         if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
             std::fs::create_dir_all(dir).with_context(|| {
                 format!("{flag} {}: creating {}", path.display(), dir.display())
@@ -205,6 +213,11 @@ pub fn main(cli: Cli) -> std::process::ExitCode {
         Command::Eval(a) => eval::run(a),
         Command::Demo(a) => demo::run(a),
     };
+    // The command's files are written; its text could not be: say so, and fail.
+    let result = result.and_then(|()| match TEXT_ERROR.get() {
+        Some(e) => Err(anyhow::anyhow!("{e}")),
+        None => Ok(()),
+    });
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {

@@ -3,7 +3,7 @@
 
 use std::path::PathBuf;
 
-use super::{UsageError, usage_check};
+use super::{UsageError, say, usage_check};
 use anyhow::Context;
 use indicatif::ProgressBar;
 
@@ -307,7 +307,7 @@ fn run_sim(a: SimArgs) -> anyhow::Result<()> {
     })
     .with_context(|| format!("record sim {} to {}", scene.name, a.output.display()))?;
     bar.finish_and_clear();
-    println!(
+    say!(
         "wrote {} ({} frames, {} messages)",
         stats.path.display(),
         stats.frames,
@@ -342,7 +342,7 @@ fn run_import(a: ImportArgs) -> anyhow::Result<()> {
     .with_context(|| format!("record import to {}", a.output.display()))?;
     bar.finish_and_clear();
     // The result on stdout like every command's; notes on stderr with the warnings.
-    println!(
+    say!(
         "wrote {} ({} frames, {} labelled; matched {})",
         stats.path.display(),
         stats.frames,
@@ -360,7 +360,7 @@ fn run_import(a: ImportArgs) -> anyhow::Result<()> {
         eprintln!("note: {note}");
     }
     if stats.distorted > 0 {
-        println!(
+        say!(
             "{} frames carry lens distortion (CameraInfo d, plumb_bob); the replay rectifies them",
             stats.distorted
         );

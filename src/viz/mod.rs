@@ -228,7 +228,11 @@ pub fn open_stream(
                     what: e.to_string(),
                 })?;
             }
-            let partial = objloc_core::io::output::partial_path(&path);
+            let (partial, path) =
+                objloc_core::io::output::destination(&path).map_err(|e| VizError::Create {
+                    path: path.display().to_string(),
+                    what: e.to_string(),
+                })?;
             let rec = builder.save(&partial).map_err(|e| VizError::Create {
                 path: partial.display().to_string(),
                 what: e.to_string(),

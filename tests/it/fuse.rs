@@ -868,6 +868,41 @@ fn outputs_never_overwrite_inputs_or_each_other() {
         &[],
     ));
     assert!(nested.exists());
+    // A device is refused before the replay (renamed over, /dev/null became a file); a
+    // directory too.
+    for (flag, target) in [("--report", "/dev/null"), ("--grid", "/dev/null")] {
+        let line = usage_error(&objloc(
+            &[
+                "fuse",
+                p(&session),
+                "--model",
+                p(&model),
+                "--no-rerun",
+                flag,
+                target,
+            ],
+            &[],
+        ));
+        assert!(line.contains("not a regular file"), "{line}");
+    }
+    let line = usage_error(&objloc(
+        &[
+            "fuse",
+            p(&session),
+            "--model",
+            p(&model),
+            "--save",
+            p(dir.path()),
+        ],
+        &[],
+    ));
+    assert!(line.contains("not a regular file"), "{line}");
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::FileTypeExt;
+        let dev_null = std::fs::metadata("/dev/null").unwrap().file_type();
+        assert!(dev_null.is_char_device());
+    }
     // eval's --object is for scoring against rectangles; with ground truth it was ignored.
     let line = usage_error(&objloc(
         &[

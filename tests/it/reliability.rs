@@ -27,7 +27,7 @@ use crate::common::fixture::{
     CAMERA_FRAME, FX_PX, HEIGHT_PX, MOUNT_TRANSLATION_M, T0_NS, WIDTH_PX, camera_info, cmd_vel,
     fixture_png, frame_stamp_ns, label, mount, odom_pose,
 };
-use crate::common::{Run, objloc_bounded, repo_dir, train};
+use crate::common::{Run, objloc_bounded, p, repo_dir, train};
 
 // ---------------------------------------------------------------------------------------------
 // Running the binary (`objloc_bounded`: within HANG_LIMIT)
@@ -829,6 +829,55 @@ fn non_finite_poses_intrinsics_and_twists() {
         &["topic /cmd_vel", &at_frame(0), "twist is not finite"],
     );
     assert!(run.stdout.contains("fused 4 of 4 frames"), "{}", run.stdout);
+    // 1e20 m/s (a garbage field) overflowed the floor map's index in the pose search: skipped.
+    let twist_huge = write_tour(dir.path(), "twist-huge.mcap", |m| {
+        m[1].payload = cmd_vel(1e20, 0.1).to_cdr();
+    });
+    let run = fuse(dir.path(), &twist_huge, &[]);
+    assert_warning(
+        &run,
+        &twist_huge,
+        &["topic /cmd_vel", &at_frame(0), "beyond any ground robot's"],
+    );
+    assert!(run.stdout.contains("fused 4 of 4 frames"), "{}", run.stdout);
+}
+
+/// stdout on a full disk: one error line and exit 1 after the command's files are written
+/// (`println!` panicked, exit 101, and fuse lost its report).
+#[cfg(target_os = "linux")]
+#[test]
+fn a_full_stdout_is_an_error_not_a_panic() {
+    let dir = tempfile::tempdir().unwrap();
+    let session = write_tour(dir.path(), "ok.mcap", |_| {});
+    let report = dir.path().join("r.json");
+    let full = || Stdio::from(std::fs::File::create("/dev/full").unwrap());
+    for args in [
+        vec!["inspect", p(&session)],
+        vec![
+            "fuse",
+            p(&session),
+            "--model",
+            p(model()),
+            "--no-rerun",
+            "--report",
+            p(&report),
+        ],
+    ] {
+        let out = Command::new(env!("CARGO_BIN_EXE_objloc"))
+            .args(&args)
+            .stdout(full())
+            .stderr(Stdio::piped())
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{args:?}: {err}");
+        assert_eq!(
+            err.trim(),
+            "error: writing to stdout: No space left on device (os error 28)",
+            "{args:?}"
+        );
+    }
+    assert!(report.exists(), "fuse wrote its report before failing");
 }
 
 /// fuse takes one camera: a CameraInfo that changes mid-session is refused with one line

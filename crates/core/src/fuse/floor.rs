@@ -263,7 +263,9 @@ impl FloorMap {
         // Truncation is the floor of these non-negative values, without a libm call (the
         // baseline x86-64 target has no rounding instruction); this is the scorer's inner loop.
         let (x0, y0) = (fx as usize, fy as usize);
-        if x0 + 1 >= self.nx || y0 + 1 >= self.ny {
+        // Not `x0 + 1 >= nx`: a coordinate beyond usize saturates to usize::MAX, and the sum
+        // would wrap (a /cmd_vel of 1e20 m/s put the search's candidates there).
+        if x0 >= self.nx - 1 || y0 >= self.ny - 1 {
             return None;
         }
         let (sx, sy) = (fx - x0 as f64, fy - y0 as f64);
@@ -586,6 +588,28 @@ mod tests {
                 "{got} vs {want}"
             );
         }
+    }
+
+    /// A point beyond usize (a pose 1e30 m away) is off the map, not a wrapped index.
+    #[test]
+    fn points_beyond_any_index_are_off_the_map() {
+        let mut map = FloorMap::new([-1.0, -1.0], [1.0, 1.0], FloorParams::default());
+        let patch = textured_patch();
+        map.add(&patch, &Iso3::identity());
+        for q in [
+            [1e30, 0.0],
+            [0.0, 1e30],
+            [f64::INFINITY, 0.0],
+            [f64::NAN, 0.0],
+        ] {
+            assert!(map.lookup(&q).is_none(), "{q:?}");
+        }
+        let far = iso_from_xy_yaw(1e30, -1e30, 0.3);
+        assert_eq!(map.overlap(&patch, &far), 0);
+        assert_eq!(
+            map.score(&patch, &far),
+            -0.5 * patch.len() as f64 * map.params.weight
+        );
     }
 
     #[test]

@@ -1,17 +1,53 @@
 //! Output files are written whole or not at all: to `NAME.partial` beside the target, then
 //! renamed, so a killed process never leaves a file that looks finished.
+//!
+//! Invariant: a rename never replaces anything but a regular file. A symbolic link is
+//! followed (its target is replaced, the link stays); a device, a pipe or a directory is
+//! refused before anything is written (renamed over, `/dev/null` would become a file).
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
-/// `out.json` -> `out.json.partial`, in the same directory (so the rename is atomic).
+/// `out.json` -> `out.json.partial`, beside the file `path` names (a link's target), so the
+/// rename is atomic.
 pub fn partial_path(path: &Path) -> PathBuf {
+    let path = final_path(path);
     let mut name = path
         .file_name()
         .map(|n| n.to_os_string())
         .unwrap_or_default();
     name.push(".partial");
     path.with_file_name(name)
+}
+
+/// The file an output path names: a symbolic link's target (the link stays and its file is
+/// replaced), else the path itself.
+pub fn final_path(path: &Path) -> PathBuf {
+    let is_link = std::fs::symlink_metadata(path).is_ok_and(|m| m.file_type().is_symlink());
+    if !is_link {
+        return path.to_path_buf();
+    }
+    std::fs::canonicalize(path).unwrap_or_else(|_| {
+        // A dangling link: the file it names, relative to the link's directory.
+        let dir = path.parent().unwrap_or(Path::new(""));
+        std::fs::read_link(path).map_or_else(|_| path.to_path_buf(), |t| dir.join(t))
+    })
+}
+
+/// Where an output is written and then renamed to: (`.partial`, final file). An existing
+/// path that is not a regular file (a device such as `/dev/null`, a pipe, a directory) is
+/// refused: the rename would replace it.
+pub fn destination(path: &Path) -> std::io::Result<(PathBuf, PathBuf)> {
+    let target = final_path(path);
+    if let Ok(m) = std::fs::metadata(&target)
+        && !m.is_file()
+    {
+        return Err(std::io::Error::new(
+            std::io::ErrorKind::InvalidInput,
+            "not a regular file (a device, a pipe or a directory): an output is written whole beside it and renamed over it, which would replace it; give a file path",
+        ));
+    }
+    Ok((partial_path(path), target))
 }
 
 /// Writes `bytes` to `path` through a `.partial` file and a rename.
@@ -26,7 +62,7 @@ pub fn write_atomic_with(
     path: &Path,
     fill: impl FnOnce(&mut dyn Write) -> std::io::Result<()>,
 ) -> std::io::Result<()> {
-    let partial = partial_path(path);
+    let (partial, target) = destination(path)?;
     let result = (|| {
         let mut w = std::io::BufWriter::with_capacity(1 << 20, std::fs::File::create(&partial)?);
         fill(&mut w)?;
@@ -35,7 +71,7 @@ pub fn write_atomic_with(
             .map_err(std::io::IntoInnerError::into_error)?;
         f.sync_all()?;
         drop(f);
-        std::fs::rename(&partial, path)
+        std::fs::rename(&partial, &target)
     })();
     if result.is_err() {
         let _ = std::fs::remove_file(&partial);
@@ -55,5 +91,36 @@ mod tests {
         assert_eq!(std::fs::read(&p).unwrap(), b"{}");
         assert!(!partial_path(&p).exists());
         assert_eq!(partial_path(&p).file_name().unwrap(), "a.json.partial");
+    }
+
+    /// A link is written through (it stays a link), a device is refused and left as it was.
+    #[cfg(unix)]
+    #[test]
+    fn links_are_followed_and_devices_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let target = dir.path().join("t.json");
+        let link = dir.path().join("l.json");
+        std::fs::write(&target, b"old").unwrap();
+        std::os::unix::fs::symlink(&target, &link).unwrap();
+        write_atomic(&link, b"new").unwrap();
+        assert!(
+            std::fs::symlink_metadata(&link)
+                .unwrap()
+                .file_type()
+                .is_symlink()
+        );
+        assert_eq!(std::fs::read(&target).unwrap(), b"new");
+        assert!(!partial_path(&link).exists());
+        let e = write_atomic(Path::new("/dev/null"), b"x").unwrap_err();
+        assert!(e.to_string().contains("not a regular file"), "{e}");
+        use std::os::unix::fs::FileTypeExt;
+        assert!(
+            std::fs::metadata("/dev/null")
+                .unwrap()
+                .file_type()
+                .is_char_device()
+        );
+        let e = write_atomic(dir.path(), b"x").unwrap_err();
+        assert!(e.to_string().contains("not a regular file"), "{e}");
     }
 }

@@ -6,6 +6,11 @@ use crate::io::session::{At, MessageMeta, Role, SessionMsg, SessionReader, Timed
 use crate::types::geometry::{Camera, Iso3, iso_from_parts};
 use crate::types::lens::{Distortion, Rectifier, camera_changes};
 
+/// A command's forward or turn speed beyond this (m/s, rad/s) is garbage, not motion: the
+/// motion model would spread its uncertainty over kilometres (a /cmd_vel of 1e20 m/s once
+/// overflowed the floor map's cell index).
+pub const MAX_COMMAND_SPEED: f64 = 100.0;
+
 use super::tf::{TfError, TfTree};
 use crate::types::track::PoseTrack;
 
@@ -178,11 +183,15 @@ impl Collected {
             },
             SessionMsg::CmdVel(c) => {
                 let (v, w) = (c.twist.linear[0], c.twist.angular[2]);
-                if v.is_finite() && w.is_finite() {
-                    self.commands.push((c.header.stamp_ns, v, w));
-                } else {
+                if !(v.is_finite() && w.is_finite()) {
                     self.warnings
                         .push(format!("{at}: twist is not finite; command skipped"));
+                } else if v.abs() > MAX_COMMAND_SPEED || w.abs() > MAX_COMMAND_SPEED {
+                    self.warnings.push(format!(
+                        "{at}: twist {v} m/s, {w} rad/s is beyond any ground robot's ({MAX_COMMAND_SPEED} m/s or rad/s); command skipped"
+                    ));
+                } else {
+                    self.commands.push((c.header.stamp_ns, v, w));
                 }
             }
             SessionMsg::Frame(f) => self.frames.push(FrameRef {

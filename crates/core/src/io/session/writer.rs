@@ -14,7 +14,7 @@ use mcap::{WriteOptions, Writer};
 
 use super::{At, SessionError};
 use crate::io::msgs::RosMessage;
-use crate::io::output::partial_path;
+use crate::io::output::destination;
 
 /// Chunk size: a few 256x240 PNG frames, so a crash loses at most a second or so of a sim.
 const CHUNK_SIZE_BYTES: u64 = 256 * 1024;
@@ -31,7 +31,10 @@ impl SessionWriter {
     /// Starts a session file for `path`, written under its `.partial` name until
     /// [`SessionWriter::finish`].
     pub fn create(path: &Path) -> Result<Self, SessionError> {
-        let partial = partial_path(path);
+        let (partial, target) = destination(path).map_err(|source| SessionError::Io {
+            path: path.to_owned(),
+            source,
+        })?;
         let io = |source| SessionError::Io {
             path: partial.clone(),
             source,
@@ -53,7 +56,7 @@ impl SessionWriter {
                 cause: source,
             })?;
         Ok(Self {
-            path: path.to_owned(),
+            path: target,
             partial,
             writer,
             channels: BTreeMap::new(),
