@@ -18,7 +18,7 @@ use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
 use objloc_core::io::msgs::{
-    CompressedImage, Header, Image, Odometry, RosMessage, Twist, schema_text,
+    CompressedImage, GroundTruth, Header, Image, Odometry, RosMessage, Twist, schema_text,
 };
 use objloc_core::io::session::{SessionReader, Topics, fmt_ns};
 use proptest::prelude::*;
@@ -840,6 +840,72 @@ fn non_finite_poses_intrinsics_and_twists() {
         &["topic /cmd_vel", &at_frame(0), "beyond any ground robot's"],
     );
     assert!(run.stdout.contains("fused 4 of 4 frames"), "{}", run.stdout);
+}
+
+/// A label rectangle past the image (a garbage width of 2^32 - 1 px) is trained on as the
+/// part inside, with a warning naming /labels and its time; eval's "wholly in view" test
+/// wrapped around on it in u32.
+#[test]
+fn label_rectangles_past_the_image_are_named() {
+    let dir = tempfile::tempdir().unwrap();
+    let huge = write_tour(dir.path(), "huge.mcap", |m| {
+        let i = find(m, "/labels", 0);
+        let mut l = label(0);
+        l.regions[0].width = u32::MAX;
+        m[i].payload = l.to_cdr();
+    });
+    let run = try_train(dir.path(), &huge);
+    assert_warning(
+        &run,
+        &huge,
+        &[
+            "topic /labels",
+            &at_frame(0),
+            "of 4294967295 x",
+            "reaches past the",
+        ],
+    );
+}
+
+/// Ground truth that cannot be scored against (a NaN centre, names without boxes) is one
+/// error naming /ground_truth/objects (eval scored it as no object, exit 0).
+#[test]
+fn ground_truth_boxes_that_cannot_be_scored_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let truth = |edit: fn(&mut GroundTruth)| {
+        let mut g = GroundTruth {
+            header: Header::new(T0_NS, "odom"),
+            object: vec!["chair".into()],
+            box_center: vec![Default::default()],
+            box_size: vec![[0.5, 0.5, 0.9]],
+        };
+        edit(&mut g);
+        g
+    };
+    let cases: [(&str, fn(&mut GroundTruth), &str); 3] = [
+        (
+            "nan.mcap",
+            |g| g.box_center[0].position[0] = f64::NAN,
+            "centre [NaN",
+        ),
+        (
+            "names.mcap",
+            |g| g.object.push("ghost".into()),
+            "2 object names but 1 box",
+        ),
+        (
+            "flat.mcap",
+            |g| g.box_size[0][2] = 0.0,
+            "every edge a positive length",
+        ),
+    ];
+    for (name, edit, says) in cases {
+        let session = write_tour(dir.path(), name, |m| {
+            m.push(msg("/ground_truth/objects", T0_NS, &truth(edit)));
+        });
+        let run = inspect(&session);
+        assert_error(&run, &session, &["topic /ground_truth/objects", says]);
+    }
 }
 
 /// stdout on a full disk: one error line and exit 1 after the command's files are written

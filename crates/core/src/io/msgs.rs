@@ -513,6 +513,36 @@ pub struct GroundTruth {
     pub box_size: Vec<[f64; 3]>,
 }
 
+impl GroundTruth {
+    /// What makes the boxes unusable, if anything: arrays of different lengths, a centre or
+    /// orientation that is not finite, an edge that is not a positive finite length.
+    pub fn problem(&self) -> Option<String> {
+        let (n, c, z) = (
+            self.object.len(),
+            self.box_center.len(),
+            self.box_size.len(),
+        );
+        if n != c || n != z {
+            return Some(format!(
+                "{n} object names but {c} box centres and {z} box sizes: one of each per object"
+            ));
+        }
+        let bad = (0..n).find(|&i| {
+            let p = &self.box_center[i];
+            let finite = p
+                .position
+                .iter()
+                .chain(&p.orientation_xyzw)
+                .all(|v| v.is_finite());
+            !finite || !self.box_size[i].iter().all(|v| v.is_finite() && *v > 0.0)
+        })?;
+        Some(format!(
+            "box {bad} ({:?}) has centre {:?} and size {:?}: the centre must be finite and every edge a positive length",
+            self.object[bad], self.box_center[bad].position, self.box_size[bad]
+        ))
+    }
+}
+
 impl RosMessage for GroundTruth {
     const TYPE: &'static str = "objloc_msgs/msg/GroundTruth";
     fn encode_body(&self, w: &mut CdrWriter) {

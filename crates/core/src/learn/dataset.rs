@@ -187,14 +187,46 @@ pub fn load_session(
             })
         })
         .collect::<Result<Vec<_>, DatasetError>>()?;
+    let mut warnings = reader.warnings.clone();
+    let labels_topic = reader.topics().labels.clone();
+    for f in &frames {
+        for r in f.regions.iter().flatten() {
+            if let Some(why) = rectangle_problem(r, f.image.width, f.image.height) {
+                let at = reader.at(Some(&labels_topic), f.log_time_ns);
+                warnings.push(format!(
+                    "{at}: rectangle at ({}, {}) of {} x {} px {why}",
+                    r.x_offset, r.y_offset, r.width, r.height
+                ));
+            }
+        }
+    }
     Ok(LoadedSession {
         path: path.to_owned(),
         sha256,
         frames,
         label_objects,
         commands,
-        warnings: reader.warnings.clone(),
+        warnings,
     })
+}
+
+/// What is wrong with a label rectangle on a `width` x `height` frame, if anything: empty,
+/// or reaching past the image (its tiles are clipped to it, which silently turned a garbage
+/// rectangle 2^32 px wide into a quarter of the image's tiles as positives).
+fn rectangle_problem(r: &RegionOfInterest, width: u32, height: u32) -> Option<String> {
+    let (x_end, y_end) = (
+        u64::from(r.x_offset) + u64::from(r.width),
+        u64::from(r.y_offset) + u64::from(r.height),
+    );
+    if r.width == 0 || r.height == 0 {
+        Some("is empty: it labels no tile".into())
+    } else if x_end > u64::from(width) || y_end > u64::from(height) {
+        Some(format!(
+            "reaches past the {width} x {height} image: only its part inside labels tiles"
+        ))
+    } else {
+        None
+    }
 }
 
 /// Hex SHA-256 of the file at `path`, read in blocks (the file is never all in memory).

@@ -80,10 +80,12 @@ impl RectScore {
 }
 
 fn wholly_in_view(roi: &RegionOfInterest, cam: &Camera) -> bool {
+    // In u64: a rectangle of a bad label (x near 2^32) wrapped around and counted as inside.
+    let end = |offset: u32, size: u32| u64::from(offset) + u64::from(size);
     roi.x_offset > 0
         && roi.y_offset > 0
-        && roi.x_offset + roi.width < cam.width
-        && roi.y_offset + roi.height < cam.height
+        && end(roi.x_offset, roi.width) < u64::from(cam.width)
+        && end(roi.y_offset, roi.height) < u64::from(cam.height)
 }
 
 /// A ray in `odom`: origin and unit direction.
@@ -152,9 +154,9 @@ fn projects_inside(cam: &RectCamera, v: &RectView, p: [f64; 3]) -> bool {
     let (du, dv) = distorted_pixel(&cam.camera, &cam.distortion, u, y);
     let r = &v.roi;
     du >= f64::from(r.x_offset)
-        && du <= f64::from(r.x_offset + r.width)
+        && du <= f64::from(r.x_offset) + f64::from(r.width)
         && dv >= f64::from(r.y_offset)
-        && dv <= f64::from(r.y_offset + r.height)
+        && dv <= f64::from(r.y_offset) + f64::from(r.height)
 }
 
 /// Scores the located centres (`candidates`, e.g. the fused objects) of `object` against its
@@ -197,6 +199,23 @@ pub fn score(
 mod tests {
     use super::*;
     use nalgebra::{Translation3, UnitQuaternion};
+
+    /// A rectangle whose end passes 2^32 is not in view (in u32 it wrapped to 39 and was).
+    #[test]
+    fn a_rectangle_past_u32_is_not_wholly_in_view() {
+        let cam = Camera::with_hfov(256, 240, 1.0);
+        let roi = |x: u32, w: u32| RegionOfInterest {
+            x_offset: x,
+            y_offset: 10,
+            width: w,
+            height: 50,
+            do_rectify: false,
+        };
+        assert!(wholly_in_view(&roi(10, 50), &cam));
+        assert!(!wholly_in_view(&roi(u32::MAX - 10, 50), &cam));
+        assert!(!wholly_in_view(&roi(206, 50), &cam));
+        assert!(wholly_in_view(&roi(205, 50), &cam));
+    }
 
     /// A camera at `eye` looking at the origin, OpenCV axes, y down towards -z of the world.
     fn look_at_origin(eye: [f64; 3]) -> Iso3 {

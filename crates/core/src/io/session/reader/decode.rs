@@ -69,6 +69,16 @@ impl SessionReader {
                 type_name: role.message_type().to_owned(),
                 source,
             })?;
+        // Boxes that cannot be scored against are refused here, not scored as nothing (a NaN
+        // box matched no object, and eval reported the chair as spurious with exit 0).
+        if let SessionMsg::GroundTruthObjects(g) = &msg
+            && let Some(what) = g.problem()
+        {
+            return Err(SessionError::Invalid {
+                at: self.at(Some(&channel.topic), meta.log_time_ns),
+                what,
+            });
+        }
         Ok(Some(TimedMsg {
             log_time_ns: meta.log_time_ns,
             topic: channel.topic.clone(),
