@@ -882,7 +882,8 @@ fn ground_truth_boxes_that_cannot_be_scored_are_refused() {
         edit(&mut g);
         g
     };
-    let cases: [(&str, fn(&mut GroundTruth), &str); 3] = [
+    type Edit = fn(&mut GroundTruth);
+    let cases: [(&str, Edit, &str); 3] = [
         (
             "nan.mcap",
             |g| g.box_center[0].position[0] = f64::NAN,
