@@ -342,16 +342,17 @@ fn run_import(a: ImportArgs) -> anyhow::Result<()> {
     .with_context(|| format!("record import to {}", a.output.display()))?;
     bar.finish_and_clear();
     // The result on stdout like every command's; notes on stderr with the warnings.
+    // Only a TUM trajectory is matched to the images (the other formats name each image).
+    let matched = match &stats.tum_matching {
+        Some(Matching::FileNameStamps) => "; matched by file-name timestamps",
+        Some(_) => "; matched in order",
+        None => "",
+    };
     say!(
-        "wrote {} ({} frames, {} labelled; matched {})",
+        "wrote {} ({} frames, {} labelled{matched})",
         stats.path.display(),
         stats.frames,
         stats.labelled,
-        if stats.tum_matching == Some(Matching::FileNameStamps) {
-            "by file-name timestamps"
-        } else {
-            "in order"
-        }
     );
     if let Some(Matching::InOrderNotStamps(why)) = &stats.tum_matching {
         eprintln!("note: {why}");

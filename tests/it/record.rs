@@ -806,6 +806,22 @@ fn import_errors_name_file_and_line() {
     let o = objloc(&args(&traj, &[]), &[]);
     ok(&o);
     assert!(String::from_utf8_lossy(&o.stdout).contains("matched in order"));
+    // NeRF: one image under two frames' poses was taken twice (and another never).
+    let nerf = images.join("transforms.json");
+    let frame = |name: &str| {
+        serde_json::json!({"file_path": name,
+            "transform_matrix": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]})
+    };
+    let t = serde_json::json!({"fl_x": 5, "frames": [frame("a.png"), frame("b"), frame("a")]});
+    std::fs::write(&nerf, t.to_string()).unwrap();
+    let line = one_line_error(&objloc(
+        &["record", "import", "--nerf", p(&nerf), "-o", p(&out)],
+        &[],
+    ));
+    assert!(
+        line.contains("frames[2]: image \"a\" is also frames[0]'s"),
+        "{line}"
+    );
 }
 
 /// `session` written as a capture comes (scripts/sim_as_capture.py) into `dir/name`, then

@@ -160,7 +160,12 @@ fn cameras_txt(path: &Path) -> Result<BTreeMap<u32, Intrinsics>, CaptureError> {
             ));
         };
         let p = numbers(&f[4..]).ok_or_else(|| err("a parameter is not a number".into()))?;
-        out.insert(id, camera_intrinsics(model, w, h, &p).map_err(err)?);
+        if out
+            .insert(id, camera_intrinsics(model, w, h, &p).map_err(err)?)
+            .is_some()
+        {
+            return Err(err(format!("CAMERA_ID {id} is defined twice")));
+        }
     }
     Ok(out)
 }
@@ -171,35 +176,54 @@ fn images_txt(path: &Path) -> Result<Vec<Image>, CaptureError> {
     // Each image takes two lines: its pose, then its 2D points (skipped, possibly empty,
     // so the pose lines are found by their field count).
     let mut expect_pose = true;
+    // IMAGE_ID and NAME -> the line that first gave them.
+    let (mut ids, mut names) = (BTreeMap::new(), BTreeMap::new());
     for (line, l) in text.lines().enumerate().map(|(i, l)| (i + 1, l.trim())) {
         if l.starts_with('#') {
             continue;
         }
+        let f: Vec<&str> = l.split_whitespace().collect();
+        let err = |what: String| CaptureError::Line {
+            path: path.into(),
+            line,
+            what,
+        };
         if !expect_pose {
+            // X Y POINT3D_ID triples: a file without these lines read every second image
+            // as points and dropped it.
+            if !f.len().is_multiple_of(3) || numbers(&f).is_none() {
+                return Err(err(format!(
+                    "expected the POINTS2D line of the image above (`X Y POINT3D_ID` triples, or empty), found {} fields: images.txt takes two lines per image",
+                    f.len()
+                )));
+            }
             expect_pose = true;
             continue;
         }
         if l.is_empty() {
             continue;
         }
-        let f: Vec<&str> = l.split_whitespace().collect();
-        let err = |what: &str| CaptureError::Line {
-            path: path.into(),
-            line,
-            what: what.into(),
-        };
         if f.len() < 10 {
             return Err(err(
-                "expected `IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME`",
+                "expected `IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME`".into(),
             ));
         }
-        let v = numbers(&f[1..8]).ok_or_else(|| err("a pose value is not a number"))?;
-        let camera = f[8].parse().map_err(|_| err("CAMERA_ID is not a number"))?;
+        let v = numbers(&f[1..8]).ok_or_else(|| err("a pose value is not a number".into()))?;
+        let camera = f[8]
+            .parse()
+            .map_err(|_| err("CAMERA_ID is not a number".into()))?;
+        let name = f[9..].join(" ");
+        if let Some(first) = ids.insert(f[0].to_owned(), line) {
+            return Err(err(format!("IMAGE_ID {} is also on line {first}", f[0])));
+        }
+        if let Some(first) = names.insert(name.clone(), line) {
+            return Err(err(format!("image {name:?} is also on line {first}")));
+        }
         out.push(Image {
             q_wxyz: [v[0], v[1], v[2], v[3]],
             t: [v[4], v[5], v[6]],
             camera,
-            name: f[9..].join(" "),
+            name,
         });
         expect_pose = false;
     }
@@ -382,6 +406,47 @@ mod tests {
         let e = read_colmap(d, d).unwrap_err().to_string();
         assert!(
             e.contains("cameras.txt:1") && e.contains("OPENCV_FISHEYE"),
+            "{e}"
+        );
+    }
+
+    /// Two lines per image: without the POINTS2D lines every second image was read as
+    /// points and dropped; an image or camera given twice was taken silently.
+    #[test]
+    fn images_without_points_lines_and_duplicates_are_named() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        for n in ["a.png", "b.png"] {
+            std::fs::write(d.join(n), b"").unwrap();
+        }
+        let cams = "1 PINHOLE 640 480 500 500 320 240\n";
+        let err = |cameras: &str, images: &str| {
+            std::fs::write(d.join("cameras.txt"), cameras).unwrap();
+            std::fs::write(d.join("images.txt"), images).unwrap();
+            read_colmap(d, d)
+                .map(|v| v.len())
+                .map_err(|e| e.to_string())
+        };
+        let ok = "1 1 0 0 0 0 0 2 1 a.png\n1.5 2.5 -1 3 4 7\n2 1 0 0 0 0 0 2 1 b.png\n\n";
+        assert_eq!(err(cams, ok), Ok(2));
+        let no_points = "1 1 0 0 0 0 0 2 1 a.png\n2 1 0 0 0 0 0 2 1 b.png\n";
+        let e = err(cams, no_points).unwrap_err();
+        assert!(
+            e.contains("images.txt:2") && e.contains("found 10 fields"),
+            "{e}"
+        );
+        let same_name = "1 1 0 0 0 0 0 2 1 a.png\n\n2 1 0 0 0 0 0 2 1 a.png\n\n";
+        let e = err(cams, same_name).unwrap_err();
+        assert!(
+            e.contains("images.txt:3") && e.contains("also on line 1"),
+            "{e}"
+        );
+        let same_id = "1 1 0 0 0 0 0 2 1 a.png\n\n1 1 0 0 0 0 0 2 1 b.png\n\n";
+        let e = err(cams, same_id).unwrap_err();
+        assert!(e.contains("IMAGE_ID 1 is also on line 1"), "{e}");
+        let e = err(&format!("{cams}1 PINHOLE 640 480 100 100 320 240\n"), ok).unwrap_err();
+        assert!(
+            e.contains("cameras.txt:2") && e.contains("defined twice"),
             "{e}"
         );
     }

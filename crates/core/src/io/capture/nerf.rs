@@ -44,6 +44,11 @@ pub fn read_nerf(path: &Path) -> Result<Vec<PosedImage>, CaptureError> {
             .ok_or_else(|| entry("no `file_path`".into()))?;
         let image = resolve_image(dir, name)
             .ok_or_else(|| entry(format!("image {name:?} not found in {}", dir.display())))?;
+        if let Some(j) = out.iter().position(|o: &PosedImage| o.path == image) {
+            return Err(entry(format!(
+                "image {name:?} is also frames[{j}]'s: one pose per image"
+            )));
+        }
         let world_from_camera = nerf_pose(f).map_err(entry)?;
         let size = image_size(&image)?;
         let intrinsics = nerf_intrinsics(&root, f, size).map_err(entry)?;
@@ -85,9 +90,16 @@ fn nerf_pose(f: &Value) -> Result<crate::types::geometry::Iso3, String> {
     pose_from_matrix(&r, &t)
 }
 
-/// A key of the frame, or of the file's top level.
-fn key(root: &Value, f: &Value, k: &str) -> Option<f64> {
-    f.get(k).or_else(|| root.get(k)).and_then(Value::as_f64)
+/// A key of the frame, or of the file's top level; present but not a number is an error
+/// (`"k1": "x"` dropped the distortion silently).
+fn key(root: &Value, f: &Value, k: &str) -> Result<Option<f64>, String> {
+    match f.get(k).or_else(|| root.get(k)) {
+        None | Some(Value::Null) => Ok(None),
+        Some(v) => v
+            .as_f64()
+            .map(Some)
+            .ok_or_else(|| format!("`{k}` is {v}, not a number")),
+    }
 }
 
 fn nerf_intrinsics(root: &Value, f: &Value, file: (u32, u32)) -> Result<Intrinsics, String> {
@@ -106,28 +118,29 @@ fn nerf_intrinsics(root: &Value, f: &Value, file: (u32, u32)) -> Result<Intrinsi
             "camera model {model:?} (fisheye {fisheye}) cannot be represented: objloc reads pinhole cameras with radial-tangential distortion"
         ));
     }
-    if key(root, f, "k4").is_some_and(|k| k != 0.0) {
+    if key(root, f, "k4")?.is_some_and(|k| k != 0.0) {
         return Err("distortion k4 is set: objloc reads k1, k2, k3, p1, p2 only".into());
     }
     let (fw, fh) = (f64::from(file.0), f64::from(file.1));
-    let w = key(root, f, "w").unwrap_or(fw);
-    let h = key(root, f, "h").unwrap_or(fh);
-    let fl_x = key(root, f, "fl_x")
-        .or_else(|| key(root, f, "camera_angle_x").map(|a| 0.5 * w / (0.5 * a).tan()));
+    let w = key(root, f, "w")?.unwrap_or(fw);
+    let h = key(root, f, "h")?.unwrap_or(fh);
+    let angle_x = key(root, f, "camera_angle_x")?;
+    let fl_x = key(root, f, "fl_x")?.or_else(|| angle_x.map(|a| 0.5 * w / (0.5 * a).tan()));
     let fl_x = fl_x.ok_or("no `fl_x` or `camera_angle_x`")?;
-    let fl_y = key(root, f, "fl_y")
-        .or_else(|| key(root, f, "camera_angle_y").map(|a| 0.5 * h / (0.5 * a).tan()))
+    let angle_y = key(root, f, "camera_angle_y")?;
+    let fl_y = key(root, f, "fl_y")?
+        .or_else(|| angle_y.map(|a| 0.5 * h / (0.5 * a).tan()))
         .unwrap_or(fl_x);
-    let cx = key(root, f, "cx").unwrap_or(w / 2.0);
-    let cy = key(root, f, "cy").unwrap_or(h / 2.0);
+    let cx = key(root, f, "cx")?.unwrap_or(w / 2.0);
+    let cy = key(root, f, "cy")?.unwrap_or(h / 2.0);
     // Intrinsics given for w x h; the file may be a downscaled copy.
     let (sx, sy) = (fw / w, fh / h);
     let d = Distortion {
-        k1: key(root, f, "k1").unwrap_or(0.0),
-        k2: key(root, f, "k2").unwrap_or(0.0),
-        k3: key(root, f, "k3").unwrap_or(0.0),
-        p1: key(root, f, "p1").unwrap_or(0.0),
-        p2: key(root, f, "p2").unwrap_or(0.0),
+        k1: key(root, f, "k1")?.unwrap_or(0.0),
+        k2: key(root, f, "k2")?.unwrap_or(0.0),
+        k3: key(root, f, "k3")?.unwrap_or(0.0),
+        p1: key(root, f, "p1")?.unwrap_or(0.0),
+        p2: key(root, f, "p2")?.unwrap_or(0.0),
     };
     intrinsics(file.0, file.1, [fl_x * sx, fl_y * sy, cx * sx, cy * sy], d)
 }
@@ -158,5 +171,9 @@ mod tests {
         assert!((k.camera.cx - 50.0).abs() < 1e-9 && (k.camera.cy - 25.0).abs() < 1e-9);
         let fish = serde_json::json!({"fl_x": 100, "is_fisheye": true});
         assert!(nerf_intrinsics(&fish, &f, (100, 50)).is_err());
+        // A coefficient that is not a number is named, not taken as 0.
+        let k1 = serde_json::json!({"fl_x": 100, "k1": "x"});
+        let e = nerf_intrinsics(&k1, &f, (100, 50)).unwrap_err();
+        assert_eq!(e, "`k1` is \"x\", not a number");
     }
 }

@@ -222,6 +222,24 @@ fn pose_images(
             ),
         }));
     }
+    // `frame_01` and `frame_1` are one number: which the camera wrote first, and so which
+    // line is whose, cannot be told.
+    let numbers = |p: &PathBuf| {
+        super::natural_key(&super::name_of(p))
+            .into_iter()
+            .map(|(kind, n, text)| (kind, n, if kind == 0 { String::new() } else { text }))
+            .collect::<Vec<_>>()
+    };
+    if let Some(w) = images.windows(2).find(|w| numbers(&w[0]) == numbers(&w[1])) {
+        return Err(ImportError::File(CaptureError::Invalid {
+            path: images_dir.into(),
+            what: format!(
+                "{} and {} are the same name in natural order, so which of the trajectory's lines each takes cannot be told: rename one",
+                super::name_of(&w[0]),
+                super::name_of(&w[1])
+            ),
+        }));
+    }
     let posed = traj
         .iter()
         .map(|t| (t.stamp_ns, t.world_from_camera))
@@ -287,6 +305,22 @@ mod tests {
         );
         let e = parse_trajectory(p, "1.0 0 0 0 0 0 0 0\n").unwrap_err();
         assert_eq!(e.to_string(), "traj.txt:1: quaternion has zero length");
+    }
+
+    #[test]
+    fn names_of_one_number_cannot_be_matched_in_order() {
+        let p = Path::new("t");
+        let t = parse_trajectory(p, "1.0 0 0 0 0 0 0 1\n2.0 2 0 0 0 0 0 1\n").unwrap();
+        let names = |a: &str, b: &str| vec![PathBuf::from(a), PathBuf::from(b)];
+        let dir = Path::new("imgs");
+        let e = pose_images(p, dir, &t, &names("frame_01.png", "frame_1.png")).unwrap_err();
+        assert!(
+            e.to_string()
+                .contains("frame_01.png and frame_1.png are the same name in natural order"),
+            "{e}"
+        );
+        let (posed, how) = pose_images(p, dir, &t, &names("frame_1.png", "frame_2.png")).unwrap();
+        assert_eq!((posed.len(), how), (2, Matching::InOrder));
     }
 
     #[test]
