@@ -52,7 +52,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 fn evaluate_reports(args: &Args) -> anyhow::Result<()> {
     let reader =
         SessionReader::open_scoped(&args.session, args.topics.topics()?, IndexScope::Roles)
-            .with_context(|| format!("eval {}", args.session.display()))?;
+            .context("eval")?;
     for w in &reader.warnings {
         eprintln!("warning: {w}");
     }

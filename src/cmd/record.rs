@@ -251,6 +251,13 @@ fn distortion(s: &str) -> anyhow::Result<Distortion> {
             [k1, k2, p1, p2, 0.0]
         }
     };
+    // Checked here, as --camera is: a NaN was refused later as the trajectory's --camera.
+    if !v.iter().all(|k| k.is_finite()) {
+        return Err(UsageError(format!(
+            "--distortion {s:?}: every coefficient must be finite"
+        ))
+        .into());
+    }
     Ok(Distortion::from_plumb_bob(&v))
 }
 

@@ -188,6 +188,12 @@ fn check_tiles(cfg: &TrainConfig) -> anyhow::Result<()> {
             TILE_PX_RANGE.end()
         )
     })?;
+    usage_check((1..=cfg.tile_px).contains(&cfg.train_stride_px), || {
+        format!(
+            "--train-stride {} px must be 1 to the tile size {} px",
+            cfg.train_stride_px, cfg.tile_px
+        )
+    })?;
     if let Some(r) = &cfg.region {
         usage_check((1..=cfg.tile_px).contains(&r.train_stride_px), || {
             format!(

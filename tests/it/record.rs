@@ -540,7 +540,7 @@ fn import_tum_sequence_with_labels() {
     let images = p(&images);
     let traj = p(&traj);
     let o = p(&out);
-    let cases: [(&[&str], &str); 5] = [
+    let cases: [(&[&str], &str); 6] = [
         (
             &[
                 "--llff",
@@ -581,6 +581,19 @@ fn import_tum_sequence_with_labels() {
                 "0,31,16,12",
             ],
             "FX and FY must be positive",
+        ),
+        (
+            &[
+                "--images",
+                images,
+                "--trajectory",
+                traj,
+                "--camera",
+                "31,31,16,12",
+                "--distortion",
+                "nan,0,0,0",
+            ],
+            "--distortion \"nan,0,0,0\": every coefficient must be finite",
         ),
     ];
     for (flags, says) in cases {

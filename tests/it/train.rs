@@ -379,6 +379,11 @@ fn bad_inputs_fail_with_one_line_and_no_output() {
         ("--trees", "0", "--trees 0 must be 1 to 256"),
         ("--tile", "0", "--tile 0 px is outside 2..=128 px"),
         (
+            "--train-stride",
+            "0",
+            "--train-stride 0 px must be 1 to the tile size 8 px",
+        ),
+        (
             "--m-estimate",
             "0",
             "--m-estimate 0 must be a positive number",

@@ -208,10 +208,17 @@ impl Topics {
                     let keys: Vec<_> = Role::ALL.iter().map(|r| r.key()).collect();
                     format!("unknown topic role {key:?}; roles are {}", keys.join(", "))
                 })?;
-            *self.get_mut(role) = topic.to_owned();
-            if !self.named.contains(&role) {
-                self.named.push(role);
+            if topic.is_empty() || topic.chars().any(char::is_whitespace) {
+                return Err(format!("topic override {o:?} names no topic (ROLE=/topic)"));
             }
+            if self.named.contains(&role) {
+                return Err(format!(
+                    "role {key:?} is given twice ({key}={} and {o}): which topic to read is not known",
+                    self.get_mut(role)
+                ));
+            }
+            *self.get_mut(role) = topic.to_owned();
+            self.named.push(role);
         }
         Ok(self)
     }
@@ -809,5 +816,32 @@ mod one_line_tests {
             "{}",
             one_line(&e)
         );
+    }
+}
+
+#[cfg(test)]
+mod override_tests {
+    use super::Topics;
+
+    /// A role named twice, or a role without a topic, is a mistake, not "the last one wins"
+    /// (`--topic odom=/ground_truth/pose --topic odom=/odom` read /odom silently).
+    #[test]
+    fn a_role_named_twice_or_without_a_topic_is_refused() {
+        let t = Topics::default()
+            .with_overrides(&["odom=/wheel/odom", "cmd_vel=/cmd"])
+            .unwrap();
+        assert_eq!(
+            (t.odom.as_str(), t.cmd_vel.as_str()),
+            ("/wheel/odom", "/cmd")
+        );
+        let e = Topics::default()
+            .with_overrides(&["odom=/a", "odom=/b"])
+            .unwrap_err();
+        assert_eq!(
+            e,
+            "role \"odom\" is given twice (odom=/a and odom=/b): which topic to read is not known"
+        );
+        let e = Topics::default().with_overrides(&["odom="]).unwrap_err();
+        assert!(e.contains("names no topic"), "{e}");
     }
 }
