@@ -1011,6 +1011,23 @@ fn stamps_going_backwards() {
         ],
     );
     assert!(run.stdout.contains("fused 3 of 4 frames"), "{}", run.stdout);
+    // Frame 2 stamped as frame 1 (a driver that does not fill stamps repeats one): fused at
+    // one pose, and said.
+    let shared = write_tour(dir.path(), "shared.mcap", |m| {
+        let i = find(m, "/camera/image/compressed", 2);
+        let mut c = compressed(2, "png", fixture_png(8));
+        c.header.stamp_ns = frame_stamp_ns(1);
+        m[i].payload = c.to_cdr();
+    });
+    let run = fuse(dir.path(), &shared, &[]);
+    assert_warning(
+        &run,
+        &shared,
+        &[
+            "topic /camera/image/compressed",
+            "2 of 4 frames share a header stamp with another",
+        ],
+    );
 
     // Log times going backwards in file order: the reader sorts, inspect says so.
     let log_back = dir.path().join("log.mcap");

@@ -336,6 +336,7 @@ pub fn load_session(reader: &SessionReader) -> Result<SessionData, ReplayError> 
             reader.topics().odom
         ));
     }
+    c.warnings.extend(frame_stamp_warnings(&path, &c.frames));
     c.commands.sort_by_key(|(t, _, _)| *t);
     // The replay asks the pose tracks only at its frames' stamps and its commands' (where a
     // motion segment starts): kept there alone, they cost per frame and command, not per
@@ -362,4 +363,63 @@ pub fn load_session(reader: &SessionReader) -> Result<SessionData, ReplayError> 
         ground_truth: c.ground_truth,
         warnings: c.warnings,
     })
+}
+
+/// A header stamp this far from its log time (either way) is not the frame's exposure: a
+/// driver that leaves stamps at 0, or a clock in another epoch.
+const STAMP_LOG_GAP_WARN_NS: u64 = 60_000_000_000;
+
+/// Warnings about the frames' header stamps, the times their poses are taken at: stamps
+/// shared by several frames (all posed alike; a driver that does not fill them writes 0 for
+/// every frame) and stamps far from the log time.
+fn frame_stamp_warnings(path: &str, frames: &[FrameRef]) -> Vec<String> {
+    let mut out = Vec::new();
+    let Some(first) = frames.first() else {
+        return out;
+    };
+    let mut stamps: Vec<i64> = frames.iter().map(|f| f.stamp_ns).collect();
+    stamps.sort_unstable();
+    let shared: Vec<i64> = stamps
+        .windows(2)
+        .filter(|w| w[0] == w[1])
+        .map(|w| w[0])
+        .collect();
+    if let Some(&t) = shared.first() {
+        let n = frames
+            .iter()
+            .filter(|f| shared.binary_search(&f.stamp_ns).is_ok())
+            .count();
+        out.push(format!(
+            "{path}: topic {}: {n} of {} frames share a header stamp with another (the first: {}), so they are posed alike: are the camera's stamps filled?",
+            first.topic,
+            frames.len(),
+            stamp_text(t)
+        ));
+    }
+    let far: Vec<&FrameRef> = frames
+        .iter()
+        .filter(|f| {
+            i128::from(f.stamp_ns).abs_diff(i128::from(f.log_time_ns))
+                > u128::from(STAMP_LOG_GAP_WARN_NS)
+        })
+        .collect();
+    if let Some(f) = far.first() {
+        out.push(format!(
+            "{path}: topic {}: {} of {} frames have a header stamp more than 60 s from their log time (the first: stamp {} at log time {}); poses are taken at the header stamp",
+            first.topic,
+            far.len(),
+            frames.len(),
+            stamp_text(f.stamp_ns),
+            crate::io::session::fmt_ns(f.log_time_ns)
+        ));
+    }
+    out
+}
+
+/// A header stamp as seconds (negative ones too).
+fn stamp_text(stamp_ns: i64) -> String {
+    match u64::try_from(stamp_ns) {
+        Ok(t) => crate::io::session::fmt_ns(t),
+        Err(_) => format!("{stamp_ns} ns"),
+    }
 }
