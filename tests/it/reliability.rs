@@ -829,6 +829,26 @@ fn non_finite_poses_intrinsics_and_twists() {
         &["topic /cmd_vel", &at_frame(0), "twist is not finite"],
     );
     assert!(run.stdout.contains("fused 4 of 4 frames"), "{}", run.stdout);
+    // A quaternion of length 0.71 on /odom: tf2 would refuse it; normalised, and said once.
+    let half = write_tour(dir.path(), "half.mcap", |m| {
+        for k in 1..3 {
+            let i = find(m, "/odom", k);
+            let mut o = odometry(k);
+            o.pose.orientation_xyzw = [0.0, 0.0, 0.5, 0.5];
+            m[i].payload = o.to_cdr();
+        }
+    });
+    let run = fuse(dir.path(), &half, &[]);
+    assert_warning(
+        &run,
+        &half,
+        &[
+            "topic /odom",
+            &at_frame(1),
+            "2 message(s) on /odom carry a quaternion of length 0.7071",
+        ],
+    );
+    assert!(run.stdout.contains("fused 4 of 4 frames"), "{}", run.stdout);
     // 1e20 m/s (a garbage field) overflowed the floor map's index in the pose search: skipped.
     let twist_huge = write_tour(dir.path(), "twist-huge.mcap", |m| {
         m[1].payload = cmd_vel(1e20, 0.1).to_cdr();

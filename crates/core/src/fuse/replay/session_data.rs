@@ -6,6 +6,10 @@ use crate::io::session::{At, MessageMeta, Role, SessionMsg, SessionReader, Timed
 use crate::types::geometry::{Camera, Iso3, iso_from_parts};
 use crate::types::lens::{Distortion, Rectifier, camera_changes};
 
+/// How far a quaternion's squared length may be from 1 before it is named: tf2's own test
+/// (it refuses transforms beyond it).
+pub const UNIT_QUATERNION_TOLERANCE: f64 = 0.01;
+
 /// A command's forward or turn speed beyond this (m/s, rad/s) is garbage, not motion: the
 /// motion model would spread its uncertainty over kilometres (a /cmd_vel of 1e20 m/s once
 /// overflowed the floor map's cell index).
@@ -137,6 +141,9 @@ impl SessionData {
 #[derive(Default)]
 struct Collected {
     warnings: Vec<String>,
+    /// Per topic, the quaternions that are not of unit length: count, and the first's place
+    /// and length (normalised and used, and said once per topic).
+    unnormalised: std::collections::BTreeMap<String, (usize, At, f64)>,
     camera: Option<(Camera, Distortion, String)>,
     /// (parent, child, parent_from_child) from /tf_static.
     transforms: Vec<(String, String, Iso3)>,
@@ -152,8 +159,29 @@ struct Collected {
 }
 
 impl Collected {
+    /// Notes a quaternion `xyzw` of `topic` whose length is off 1 by more than tf2 allows
+    /// (it refuses them; here they are normalised, and said).
+    fn check_unit(&mut self, topic: &str, at: &At, xyzw: [f64; 4]) {
+        let len = xyzw.iter().map(|v| v * v).sum::<f64>().sqrt();
+        if len.is_finite() && len > 0.0 && (len * len - 1.0).abs() > UNIT_QUATERNION_TOLERANCE {
+            self.unnormalised
+                .entry(topic.to_owned())
+                .or_insert((0, at.clone(), len))
+                .0 += 1;
+        }
+    }
+
     /// Takes one decoded message (`meta` in the reader).
     fn take(&mut self, m: TimedMsg, meta: MessageMeta, at: At) -> Result<(), ReplayError> {
+        match &m.msg {
+            SessionMsg::TfStatic(tf) | SessionMsg::Tf(tf) => {
+                for t in &tf.transforms {
+                    self.check_unit(&m.topic, &at, t.rotation_xyzw);
+                }
+            }
+            SessionMsg::Odom(o) => self.check_unit(&m.topic, &at, o.pose.orientation_xyzw),
+            _ => {}
+        }
         match m.msg {
             SessionMsg::CameraInfo(ci) => self.take_camera(&ci, at)?,
             SessionMsg::TfStatic(tf) => {
@@ -337,6 +365,11 @@ pub fn load_session(reader: &SessionReader) -> Result<SessionData, ReplayError> 
         ));
     }
     c.warnings.extend(frame_stamp_warnings(&path, &c.frames));
+    for (topic, (n, at, len)) in &c.unnormalised {
+        c.warnings.push(format!(
+            "{at}: {n} message(s) on {topic} carry a quaternion of length {len:.4} (this one) or otherwise not 1; normalised (tf2 refuses them)"
+        ));
+    }
     c.commands.sort_by_key(|(t, _, _)| *t);
     // The replay asks the pose tracks only at its frames' stamps and its commands' (where a
     // motion segment starts): kept there alone, they cost per frame and command, not per
