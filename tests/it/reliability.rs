@@ -929,6 +929,45 @@ fn ground_truth_boxes_that_cannot_be_scored_are_refused() {
     }
 }
 
+/// /tf_static as tf2 takes it: a child given again with another transform uses the last one
+/// (said), and parents that loop are refused (both were taken silently).
+#[test]
+fn static_transforms_that_change_or_loop_are_named() {
+    let dir = tempfile::tempdir().unwrap();
+    let moved = write_tour(dir.path(), "moved.mcap", |m| {
+        let higher = [
+            MOUNT_TRANSLATION_M[0],
+            MOUNT_TRANSLATION_M[1],
+            MOUNT_TRANSLATION_M[2] + 2.0,
+        ];
+        m.insert(1, msg("/tf_static", T0_NS, &mount(higher)));
+    });
+    let run = fuse(dir.path(), &moved, &[]);
+    let z = format!("{:.3}) m", MOUNT_TRANSLATION_M[2] + 2.0);
+    assert_warning(
+        &run,
+        &moved,
+        &[
+            "topic /tf_static",
+            CAMERA_FRAME,
+            "is given different transforms",
+            &z,
+        ],
+    );
+    let looped = write_tour(dir.path(), "loop.mcap", |m| {
+        let mut back = mount(MOUNT_TRANSLATION_M);
+        let t = &mut back.transforms[0];
+        (t.header.frame_id, t.child_frame_id) = (CAMERA_FRAME.to_owned(), "base_link".to_owned());
+        m.insert(1, msg("/tf_static", T0_NS, &back));
+    });
+    let run = fuse(dir.path(), &looped, &[]);
+    assert_error(
+        &run,
+        &looped,
+        &["topic /tf_static", "form a loop", "tf2 refuses such a tree"],
+    );
+}
+
 /// stdout on a full disk: one error line and exit 1 after the command's files are written
 /// (`println!` panicked, exit 101, and fuse lost its report).
 #[cfg(target_os = "linux")]

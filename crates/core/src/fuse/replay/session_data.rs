@@ -1,5 +1,7 @@
 //! Pass 1 of the replay: everything of a session but the pixels, read and validated.
 
+use std::collections::BTreeMap;
+
 use crate::io::msgs::GroundTruth;
 use crate::io::msgs::iso_from_pose;
 use crate::io::session::{At, MessageMeta, Role, SessionMsg, SessionReader, TimedMsg};
@@ -143,7 +145,7 @@ struct Collected {
     warnings: Vec<String>,
     /// Per topic, the quaternions that are not of unit length: count, and the first's place
     /// and length (normalised and used, and said once per topic).
-    unnormalised: std::collections::BTreeMap<String, (usize, At, f64)>,
+    unnormalised: BTreeMap<String, (usize, At, f64)>,
     camera: Option<(Camera, Distortion, String)>,
     /// (parent, child, parent_from_child) from /tf_static.
     transforms: Vec<(String, String, Iso3)>,
@@ -269,12 +271,58 @@ impl Collected {
 
     /// The transform tree, checked to give the camera mount: at every stamp when static,
     /// at least somewhere when it moves (frames without one are skipped later).
+    /// Static transforms as tf2 takes them: a later one of the same child replaces an earlier
+    /// one (said, when they differ), and parents that loop are refused.
+    fn check_static_transforms(&mut self, reader: &SessionReader) -> Result<(), ReplayError> {
+        let topic = &reader.topics().tf_static;
+        let mut last: BTreeMap<&str, (&str, &Iso3)> = BTreeMap::new();
+        let mut replaced: Vec<&str> = Vec::new();
+        for (parent, child, iso) in &self.transforms {
+            if let Some((p, prev)) = last.insert(child, (parent, iso))
+                && (p != parent || (prev.to_homogeneous() - iso.to_homogeneous()).amax() > 1e-9)
+                && !replaced.contains(&child.as_str())
+            {
+                replaced.push(child);
+            }
+        }
+        for child in replaced {
+            let (parent, iso) = last[child];
+            let t = iso.translation.vector;
+            self.warnings.push(format!(
+                "{}: topic {topic}: {child} is given different transforms; the last one, from \
+                 {parent} at ({:.3}, {:.3}, {:.3}) m, is used, as tf2 does",
+                reader.path().display(),
+                t.x,
+                t.y,
+                t.z
+            ));
+        }
+        let tree = TfTree::new(&self.transforms, &[]);
+        for child in last.keys() {
+            if let Err(TfError::Loop { .. }) = tree.lookup(None, child, 0) {
+                return Err(ReplayError::Invalid {
+                    at: At {
+                        path: reader.path().to_owned(),
+                        topic: Some(topic.clone()),
+                        log_time_ns: None,
+                    },
+                    what: format!(
+                        "the parents of {child:?} form a loop ({}): tf2 refuses such a tree",
+                        loop_text(&last, child)
+                    ),
+                });
+            }
+        }
+        Ok(())
+    }
+
     fn mount(
-        &self,
+        &mut self,
         reader: &SessionReader,
         camera_frame_id: &str,
         first_stamp_ns: i64,
     ) -> Result<(TfTree, Option<Iso3>), ReplayError> {
+        self.check_static_transforms(reader)?;
         let tree = TfTree::new(&self.transforms, &self.dynamic);
         let t = &self.transforms;
         let lone = (t.len() == 1 && self.dynamic.is_empty()).then(|| t[0].2);
@@ -350,13 +398,22 @@ pub fn load_session(reader: &SessionReader) -> Result<SessionData, ReplayError> 
             .is_err()
         && !tf.is_dynamic()
     {
-        let parent = tf.parent(&camera_frame_id).unwrap_or("?");
-        c.warnings.push(format!(
-            "{path}: the camera mount is taken from {parent} -> {camera_frame_id} on {}, but \
-             /odom moves {base:?}, which no transform connects to it (a moving mount's /tf \
-             missing?)",
-            reader.topics().tf_static
-        ));
+        let tf_static = &reader.topics().tf_static;
+        c.warnings
+            .push(match (tf.parent(&camera_frame_id), c.transforms.first()) {
+                (Some(parent), _) => format!(
+                    "{path}: the camera mount is taken from {parent} -> {camera_frame_id} on \
+                 {tf_static}, but /odom moves {base:?}, which no transform connects to it (a \
+                 moving mount's /tf missing?)"
+                ),
+                // The lone transform stands in, though it names neither frame.
+                (None, Some((p, child, _))) => format!(
+                    "{path}: the camera mount is taken from the only transform on {tf_static}, \
+                 {p} -> {child}, though the camera's frame is {camera_frame_id:?} and /odom \
+                 moves {base:?}: check the frames"
+                ),
+                (None, None) => format!("{path}: no transform on {tf_static} names the camera"),
+            });
     }
     if c.odom.windows(2).any(|w| w[1].0 < w[0].0) {
         c.warnings.push(format!(
@@ -455,4 +512,18 @@ fn stamp_text(stamp_ns: i64) -> String {
         Ok(t) => crate::io::session::fmt_ns(t),
         Err(_) => format!("{stamp_ns} ns"),
     }
+}
+
+/// The chain of parents from `child` round its loop, as `a -> b -> a`.
+fn loop_text(parents: &BTreeMap<&str, (&str, &Iso3)>, child: &str) -> String {
+    let mut seen = vec![child];
+    let mut at = child;
+    while let Some((p, _)) = parents.get(at) {
+        seen.push(p);
+        if seen[..seen.len() - 1].contains(p) || seen.len() > super::tf::MAX_CHAIN {
+            break;
+        }
+        at = p;
+    }
+    seen.iter().rev().copied().collect::<Vec<_>>().join(" -> ")
 }
