@@ -122,6 +122,16 @@ pub(super) fn chunk_prefix(body_len: usize) -> [u8; 9] {
 
 impl SessionReader {
     /// The last message indexed so far (file order), for errors about what follows it.
+    /// Where the damage lies against the messages read: after the one [`Self::at_last`]
+    /// names, or before the first (then no message is named).
+    fn after_what(&self) -> &'static str {
+        if self.last_scanned.is_some() {
+            "after the message named here"
+        } else {
+            "before the first message"
+        }
+    }
+
     fn at_last(&self) -> At {
         // The last message scanned, indexed or not: under IndexScope::Roles the last indexed
         // one can lie far before the damage.
@@ -386,32 +396,41 @@ impl SessionReader {
             source if ran_out && st.ends_with_magic => Err(SessionError::Mcap {
                 at: self.at_last(),
                 what: format!(
-                    "damaged data after byte {} (after the message named here; the file ends with the MCAP magic, so it is not truncated)",
-                    self.bytes_intact
+                    "damaged data after byte {} ({}; the file ends with the MCAP magic, so it is not truncated)",
+                    self.bytes_intact,
+                    self.after_what()
                 ),
                 cause: source,
             }),
             _ if ran_out => {
                 let at = self.at_last();
                 // The warning names the file: commands print it beside other files' warnings.
+                let last = match (at.topic, at.log_time_ns) {
+                    (Some(t), Some(ns)) => format!("{t} at {}", super::super::fmt_ns(ns)),
+                    _ => "none".to_owned(),
+                };
+                // Cut right after a whole record (a recording that was never closed): what is
+                // missing is the summary, not data anyone knows of.
+                let lost = if self.bytes_intact >= self.file_len {
+                    "it ends after a whole record, without the summary and footer of a closed recording"
+                } else {
+                    "the rest is lost"
+                };
                 self.warnings.push(format!(
-                    "file is truncated: read {} messages from the first {} of {} bytes of {}; the rest is lost (last intact message: {})",
+                    "file is truncated: read {} messages from the first {} of {} bytes of {}; {lost} (last intact message: {last})",
                     st.scanned,
                     self.bytes_intact,
                     self.file_len,
                     self.path.display(),
-                    match (at.topic, at.log_time_ns) {
-                        (Some(t), Some(ns)) => format!("{t} at {}", super::super::fmt_ns(ns)),
-                        _ => "none".to_owned(),
-                    }
                 ));
                 Ok(Step::Stop)
             }
             source => Err(SessionError::Mcap {
                 at: self.at_last(),
                 what: format!(
-                    "damaged data after byte {} (after the message named here)",
-                    self.bytes_intact
+                    "damaged data after byte {} ({})",
+                    self.bytes_intact,
+                    self.after_what()
                 ),
                 cause: source,
             }),
