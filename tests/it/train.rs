@@ -245,6 +245,11 @@ fn train_then_predict_finds_the_box() {
         ],
     );
     let pred = dir.path().join("pred");
+    // An earlier run's heatmap of a fifth frame (and a file of the user's): the first goes,
+    // the second stays.
+    std::fs::create_dir_all(&pred).unwrap();
+    std::fs::write(pred.join("heatmap_00004.png"), b"stale").unwrap();
+    std::fs::write(pred.join("notes.txt"), b"mine").unwrap();
     let text = ok(&objloc(
         &[
             "predict",
@@ -262,6 +267,8 @@ fn train_then_predict_finds_the_box() {
         !pred.join("predict.rrd").exists(),
         "--no-rerun wrote an .rrd"
     );
+    assert!(pred.join("heatmap_00003.png").exists() && !pred.join("heatmap_00004.png").exists());
+    assert_eq!(std::fs::read(pred.join("notes.txt")).unwrap(), b"mine");
     let auc = printed_auc(&text);
     assert!(auc > 0.97, "{text}");
     // An object asked for that no label names is refused, as train and eval refuse it.

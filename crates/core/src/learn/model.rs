@@ -670,11 +670,28 @@ impl Model {
     }
 }
 
+/// Removes the `heatmap_NNNNN.png` files of an earlier run from `dir`: left beside the new
+/// maps (of another session, or more frames), they read as this run's. Nothing else in the
+/// directory is touched.
+fn remove_heatmaps(dir: &Path) -> std::io::Result<()> {
+    for entry in std::fs::read_dir(dir)? {
+        let path = entry?.path();
+        let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("");
+        let digits = name
+            .strip_prefix("heatmap_")
+            .and_then(|r| r.strip_suffix(".png"));
+        if digits.is_some_and(|d| d.len() == 5 && d.bytes().all(|b| b.is_ascii_digit())) {
+            std::fs::remove_file(&path)?;
+        }
+    }
+    Ok(())
+}
+
 impl SessionPrediction {
     /// Writes `probs.npy` (float32 frames x rows x cols: the region head's maps),
     /// `tile_probs.npy` (the tile head's, the fuser's evidence), `labels.npy` (int8, same
     /// shape) and `stamps.npy` (int64 ns) into `dir`, and with `heatmaps` a
-    /// `heatmap_NNNNN.png` per frame.
+    /// `heatmap_NNNNN.png` per frame (an earlier run's heatmaps are removed either way).
     pub fn write(
         &self,
         dir: &Path,
@@ -686,6 +703,7 @@ impl SessionPrediction {
             move |source| ModelError::Io { path, source }
         };
         std::fs::create_dir_all(dir).map_err(io(dir))?;
+        remove_heatmaps(dir).map_err(io(dir))?;
         let (rows, cols) = self.maps.first().map_or((0, 0), |m| (m.rows, m.cols));
         let probs: Vec<f32> = self.maps.iter().flat_map(|m| m.p.iter().copied()).collect();
         let tile_probs: Vec<f32> = self

@@ -292,7 +292,10 @@ impl Scene {
         self.validate_light()?;
         self.validate_camera()?;
         if !positive(&[self.robot.drive_speed_m_s, self.robot.turn_speed_rad_s]) {
-            return Err(format!("robot speeds {:?} must be positive", self.robot));
+            return Err(format!(
+                "robot.drive_speed_m_s {} and robot.turn_speed_rad_s {} must be positive",
+                self.robot.drive_speed_m_s, self.robot.turn_speed_rad_s
+            ));
         }
         self.validate_primitives()?;
         self.validate_path()
@@ -351,7 +354,8 @@ impl Scene {
             && l.ambient >= 0.0;
         if !finite(&l.direction) || dir_len < 1e-9 || !radiance_ok {
             return Err(format!(
-                "light {l:?} needs a non-zero direction and non-negative radiance"
+                "light.direction {:?} must be finite and non-zero, light.intensity {} and light.ambient {} finite and non-negative",
+                l.direction, l.intensity, l.ambient
             ));
         }
         Ok(())
@@ -507,6 +511,21 @@ mod tests {
             Scene::from_json(&bad)
                 .unwrap_err()
                 .contains("unknown field `hfov`")
+        );
+        // Fields by their names in the file, not Rust's Debug of the struct.
+        let mut s = Scene::from_json(builtin_json("chair").unwrap()).unwrap();
+        s.robot.drive_speed_m_s = 0.0;
+        let e = s.validate().unwrap_err();
+        assert!(
+            e.starts_with("robot.drive_speed_m_s 0 and robot.turn_speed_rad_s "),
+            "{e}"
+        );
+        let mut s = Scene::from_json(builtin_json("chair").unwrap()).unwrap();
+        s.light.direction = [0.0; 3];
+        let e = s.validate().unwrap_err();
+        assert!(
+            e.starts_with("light.direction [0.0, 0.0, 0.0] must be finite and non-zero"),
+            "{e}"
         );
     }
 }
