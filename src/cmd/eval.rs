@@ -53,9 +53,7 @@ fn evaluate_reports(args: &Args) -> anyhow::Result<()> {
     let reader =
         SessionReader::open_scoped(&args.session, args.topics.topics()?, IndexScope::Roles)
             .context("eval")?;
-    for w in &reader.warnings {
-        eprintln!("warning: {w}");
-    }
+    super::print_warnings(&reader.warnings);
     let mut gt = None;
     let mut poses = Vec::new();
     for m in reader.messages() {

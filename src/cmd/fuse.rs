@@ -528,9 +528,7 @@ pub fn print_summary(f: &Fused) {
     if r.options.refine_poses {
         print_refinement(r);
     }
-    for w in &r.warnings {
-        eprintln!("warning: {w}");
-    }
+    super::print_warnings(&r.warnings);
 }
 
 /// What refinement did: the frames per verdict, how far the poses moved off /odom, whether

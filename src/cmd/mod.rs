@@ -107,6 +107,39 @@ impl TopicArgs {
     }
 }
 
+/// Prints warnings on stderr, each kind once: warnings that differ only in their log time
+/// (a /cmd_vel of NaN in every message gave 42 identical lines) are one line with the first
+/// time and how many more there were.
+pub(crate) fn print_warnings<'a>(warnings: impl IntoIterator<Item = &'a String>) {
+    let mut kinds: Vec<(String, &String, usize)> = Vec::new();
+    for w in warnings {
+        let key = without_log_time(w);
+        match kinds.iter_mut().find(|(k, _, _)| *k == key) {
+            Some(kind) => kind.2 += 1,
+            None => kinds.push((key, w, 0)),
+        }
+    }
+    for (_, first, more) in kinds {
+        match more {
+            0 => eprintln!("warning: {first}"),
+            n => eprintln!("warning: {first} (and {n} more like it at later times)"),
+        }
+    }
+}
+
+/// `w` without the time in its "at log time T s".
+fn without_log_time(w: &str) -> String {
+    const AT: &str = "at log time ";
+    match w.find(AT) {
+        Some(i) => {
+            let rest = &w[i + AT.len()..];
+            let end = rest.find(" s").map_or(rest.len(), |e| e + 2);
+            format!("{}{AT}{}", &w[..i], &rest[end..])
+        }
+        None => w.to_owned(),
+    }
+}
+
 /// A command line that parsed but cannot be run as asked: a flag's value out of its range,
 /// or a flag without the one it qualifies. It exits 2, as clap's own usage errors do, so that
 /// every mistake in the command line (not in the files it names) has the same exit code.
@@ -246,5 +279,30 @@ pub(crate) fn names_or_none(names: &std::collections::BTreeSet<String>) -> Strin
         "none".to_owned()
     } else {
         names.iter().cloned().collect::<Vec<_>>().join(", ")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::without_log_time;
+
+    /// Warnings that differ only in their time are one kind; others stay apart.
+    #[test]
+    fn warnings_differing_only_in_time_are_one_kind() {
+        let w = |t: &str, what: &str| format!("s.mcap: topic /cmd_vel at log time {t} s: {what}");
+        let a = without_log_time(&w("1700000001.500000000", "twist is not finite"));
+        assert_eq!(
+            a,
+            "s.mcap: topic /cmd_vel at log time : twist is not finite"
+        );
+        assert_eq!(
+            a,
+            without_log_time(&w("1700000002.000000000", "twist is not finite"))
+        );
+        assert_ne!(
+            a,
+            without_log_time(&w("1700000001.500000000", "pose is not finite"))
+        );
+        assert_eq!(without_log_time("no time here"), "no time here");
     }
 }

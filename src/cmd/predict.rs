@@ -45,9 +45,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let object = args.object.or_else(|| model.metadata.object.clone());
     let session = load_session(&args.session, topics, object.as_deref(), false)
         .context("predict: reading the session")?;
-    for w in &session.warnings {
-        eprintln!("warning: {w}");
-    }
+    super::print_warnings(&session.warnings);
     // An object asked for by name that no label names is a mistake, as in train and eval
     // (one the model names is not: its maps are still wanted, without a score).
     if let Some(o) = asked.filter(|o| !session.label_objects.contains(o)) {

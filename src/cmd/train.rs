@@ -334,9 +334,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .map(|p| load_session(p, topics.clone(), args.object.as_deref(), true))
         .collect::<Result<Vec<_>, _>>()
         .context("train: reading sessions")?;
-    for w in sessions.iter().flat_map(|s| &s.warnings) {
-        eprintln!("warning: {w}");
-    }
+    super::print_warnings(sessions.iter().flat_map(|s| &s.warnings));
     if let Some(o) = &args.object
         && !sessions.iter().any(|s| s.label_objects.contains(o))
     {

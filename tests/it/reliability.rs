@@ -752,6 +752,25 @@ fn images_that_do_not_decode_or_are_too_large() {
         assert_error(&try_train(dir.path(), &path), &path, &needles);
         assert_error(&predict(dir.path(), &path, model()), &path, &needles);
     }
+    // A frame of half the size decodes, but is not the session's camera: inspect says so (it
+    // compared the first frame only), fuse refuses it.
+    let small = write_tour(dir.path(), "small.mcap", |m| {
+        let i = find(m, "/camera/image/compressed", 2);
+        let img = image::RgbImage::from_pixel(WIDTH_PX / 2, HEIGHT_PX / 2, image::Rgb([9, 9, 9]));
+        let mut png = std::io::Cursor::new(Vec::new());
+        img.write_to(&mut png, image::ImageFormat::Png).unwrap();
+        m[i].payload = compressed(2, "png", png.into_inner()).to_cdr();
+    });
+    let half = format!("(this one {} x {})", WIDTH_PX / 2, HEIGHT_PX / 2);
+    assert_warning(
+        &inspect(&small),
+        &small,
+        &[
+            "/camera/image/compressed",
+            "1 frame(s) differ in size",
+            &half,
+        ],
+    );
 }
 
 #[test]

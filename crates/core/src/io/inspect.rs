@@ -117,6 +117,7 @@ pub fn summarize_reader(reader: &SessionReader) -> Result<Summary, SessionError>
     warnings.append(&mut scan.warnings);
     check_frames_decode(reader, &scan.frames)?;
     warnings.extend(size_mismatch_warning(&scan));
+    warnings.extend(other_size_warning(&scan));
     warnings.extend(unposed_warning(&scan, topics));
     warnings.extend(orphan_label_warning(&scan));
 
@@ -225,6 +226,9 @@ impl Scan {
     }
 }
 
+/// A frame of another size than the first: its topic, log time and size.
+type OtherSize = (String, u64, (u32, u32));
+
 /// What one pass over the session-role messages found.
 #[derive(Default)]
 struct Scan {
@@ -248,6 +252,8 @@ struct Scan {
     gt_present: bool,
     /// Every frame's message, for the decode check.
     frames: Vec<MessageMeta>,
+    /// Frames of another size than the first: how many, and the first of them.
+    other_size: (usize, Option<OtherSize>),
     /// Warnings about single messages, in replay order.
     warnings: Vec<String>,
 }
@@ -287,16 +293,27 @@ fn scan(reader: &SessionReader) -> Result<Scan, SessionError> {
         };
         match m.msg {
             SessionMsg::Frame(f) => {
-                if s.image.is_none() {
-                    let (w, h) = f.dimensions().map_err(|e| SessionError::Invalid {
-                        at: reader.at(Some(&m.topic), m.log_time_ns),
-                        what: e.to_string(),
-                    })?;
-                    s.image = Some(ImageSummary {
-                        width: w,
-                        height: h,
-                        encoding: f.encoding(),
-                    });
+                // Every frame's size from its header (no decode): fuse refuses a session
+                // whose frames change size, and train took such a frame silently.
+                let (w, h) = f.dimensions().map_err(|e| SessionError::Invalid {
+                    at: reader.at(Some(&m.topic), m.log_time_ns),
+                    what: e.to_string(),
+                })?;
+                match &s.image {
+                    None => {
+                        s.image = Some(ImageSummary {
+                            width: w,
+                            height: h,
+                            encoding: f.encoding(),
+                        })
+                    }
+                    Some(first) if (first.width, first.height) != (w, h) => {
+                        s.other_size.0 += 1;
+                        s.other_size
+                            .1
+                            .get_or_insert((m.topic.clone(), m.log_time_ns, (w, h)));
+                    }
+                    Some(_) => {}
                 }
                 s.frame_stamps.push((f.stamp_ns, m.log_time_ns));
                 s.frames.push(meta);
@@ -370,6 +387,20 @@ fn check_frame(reader: &SessionReader, meta: &MessageMeta) -> Result<(), Session
         })?;
     }
     Ok(())
+}
+
+/// Warns when frames differ in size from the first.
+fn other_size_warning(scan: &Scan) -> Option<String> {
+    let (n, Some((topic, log_time_ns, (w, h)))) = &scan.other_size else {
+        return None;
+    };
+    let first = scan.image.as_ref()?;
+    Some(format!(
+        "{topic} at {}: {n} frame(s) differ in size from the first frame's {} x {} (this one {w} x {h}); fuse refuses such a session",
+        fmt_ns(*log_time_ns),
+        first.width,
+        first.height
+    ))
 }
 
 /// Warns when the frames' size is not the one CameraInfo gives.
