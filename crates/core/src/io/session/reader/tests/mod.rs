@@ -339,14 +339,24 @@ fn a_cut_inside_a_chunk_warns_and_keeps_the_chunks_before_it() {
 fn a_corrupted_byte_in_a_chunk_is_an_error_naming_the_message_before_it() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("whole.mcap");
-    let mut bytes = write(&path, small_chunks(), &increasing(300));
+    let bytes = write(&path, small_chunks(), &increasing(300));
     let chunks = chunk_indexes(&bytes);
+    // A bit flipped in the middle of chunk k's compressed records (its CRC covers them).
+    let flipped = |k: usize| {
+        let c = &chunks[k];
+        let mut b = bytes.clone();
+        b[(c.chunk_start_offset + c.chunk_length - c.compressed_size / 2) as usize] ^= 0x40;
+        SessionReader::from_bytes(Path::new("flip.mcap"), &b, Topics::default()).unwrap_err()
+    };
+    // In chunk 0 no message precedes the damage, and the error says so (it read "after the
+    // message named here" with none named).
+    let SessionError::Mcap { at, what, .. } = &flipped(0) else {
+        panic!("not an MCAP error");
+    };
+    assert_eq!((at.topic.as_ref(), at.log_time_ns), (None, None));
+    assert!(what.ends_with("(before the first message)"), "{what}");
     let c = &chunks[1];
-    // In the middle of chunk 1's compressed records (its CRC covers them).
-    let at = (c.chunk_start_offset + c.chunk_length - c.compressed_size / 2) as usize;
-    bytes[at] ^= 0x40;
-    let e =
-        SessionReader::from_bytes(Path::new("flip.mcap"), &bytes, Topics::default()).unwrap_err();
+    let e = flipped(1);
     let SessionError::Mcap { at, what, .. } = &e else {
         panic!("{e}");
     };
