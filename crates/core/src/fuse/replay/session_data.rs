@@ -8,6 +8,10 @@ use crate::io::session::{At, MessageMeta, Role, SessionMsg, SessionReader, Timed
 use crate::types::geometry::{Camera, Iso3, iso_from_parts};
 use crate::types::lens::{Distortion, Rectifier, camera_changes};
 
+use super::tf::{TfError, TfTree};
+use super::*;
+use crate::types::track::PoseTrack;
+
 /// How far a quaternion's squared length may be from 1 before it is named: tf2's own test
 /// (it refuses transforms beyond it).
 pub const UNIT_QUATERNION_TOLERANCE: f64 = 0.01;
@@ -16,11 +20,6 @@ pub const UNIT_QUATERNION_TOLERANCE: f64 = 0.01;
 /// motion model would spread its uncertainty over kilometres (a /cmd_vel of 1e20 m/s once
 /// overflowed the floor map's cell index).
 pub const MAX_COMMAND_SPEED: f64 = 100.0;
-
-use super::tf::{TfError, TfTree};
-use crate::types::track::PoseTrack;
-
-use super::*;
 
 /// Margin around the camera positions for the default bounds, metres.
 pub const DEFAULT_BOUNDS_MARGIN_M: f64 = 0.25;
@@ -269,8 +268,6 @@ impl Collected {
         Ok(())
     }
 
-    /// The transform tree, checked to give the camera mount: at every stamp when static,
-    /// at least somewhere when it moves (frames without one are skipped later).
     /// Static transforms as tf2 takes them: a later one of the same child replaces an earlier
     /// one (said, when they differ), and parents that loop are refused.
     fn check_static_transforms(&mut self, reader: &SessionReader) -> Result<(), ReplayError> {
@@ -316,6 +313,8 @@ impl Collected {
         Ok(())
     }
 
+    /// The transform tree, checked to give the camera mount: at every stamp when static,
+    /// at least somewhere when it moves (frames without one are skipped later).
     fn mount(
         &mut self,
         reader: &SessionReader,
