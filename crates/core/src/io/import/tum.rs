@@ -212,10 +212,23 @@ fn pose_images(
         }
     }
     if images.len() != traj.len() {
+        // The name that is not a time, when others are: one stray file switches the matching.
+        let is_time = |p: &&PathBuf| {
+            p.file_stem()
+                .and_then(|s| s.to_str())
+                .and_then(parse_seconds_ns)
+                .is_some()
+        };
+        let stray = images
+            .iter()
+            .find(|p| !is_time(p))
+            .filter(|_| images.iter().any(|p| is_time(&p)))
+            .map(|p| format!(": {} is not a time", super::name_of(p)))
+            .unwrap_or_default();
         return Err(ImportError::File(CaptureError::Invalid {
             path: trajectory.into(),
             what: format!(
-                "{} poses for {} images in {} (file names are not timestamps, so images are matched to lines in order)",
+                "{} poses for {} images in {} (file names are not timestamps{stray}, so images are matched to lines in order)",
                 traj.len(),
                 images.len(),
                 images_dir.display()
@@ -321,6 +334,17 @@ mod tests {
         );
         let (posed, how) = pose_images(p, dir, &t, &names("frame_1.png", "frame_2.png")).unwrap();
         assert_eq!((posed.len(), how), (2, Matching::InOrder));
+        // One stray name among times switches to matching in order; the error names it.
+        let three = [
+            PathBuf::from("1.0.png"),
+            PathBuf::from("1.5.png"),
+            PathBuf::from("zz.png"),
+        ];
+        let e = pose_images(p, dir, &t, &three).unwrap_err().to_string();
+        assert!(
+            e.contains("2 poses for 3 images") && e.contains("zz.png is not a time"),
+            "{e}"
+        );
     }
 
     #[test]
