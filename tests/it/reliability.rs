@@ -792,6 +792,20 @@ fn non_finite_poses_intrinsics_and_twists() {
     let mount_nan = write_tour(dir.path(), "mount.mcap", |m| {
         m[0].payload = mount([f64::NAN, 0.0, 1.0]).to_cdr();
     });
+    // Finite but no camera's: a principal point 1e9 px out, a lens coefficient of 1e6.
+    let cx_far = write_tour(dir.path(), "cx.mcap", |m| {
+        let i = find(m, "/camera/camera_info", 0);
+        let mut ci = camera_info(0);
+        ci.k[2] = 1e9;
+        m[i].payload = ci.to_cdr();
+    });
+    let d_huge = write_tour(dir.path(), "d.mcap", |m| {
+        let i = find(m, "/camera/camera_info", 0);
+        let mut ci = camera_info(0);
+        ci.distortion_model = "plumb_bob".into();
+        ci.d = vec![1e6, 0.0, 0.0, 0.0, 0.0];
+        m[i].payload = ci.to_cdr();
+    });
     for (path, at, why) in [
         (
             &k_nan,
@@ -804,6 +818,16 @@ fn non_finite_poses_intrinsics_and_twists() {
             "CameraInfo is not a usable pinhole camera",
         ),
         (&mount_nan, at_frame(0), "is not finite"),
+        (
+            &cx_far,
+            at_frame(0),
+            "CameraInfo is not a usable pinhole camera",
+        ),
+        (
+            &d_huge,
+            at_frame(0),
+            "holds a coefficient beyond 100 in size",
+        ),
     ] {
         let run = fuse(dir.path(), path, &[]);
         let line = assert_error(&run, path, &[&at, why]);

@@ -726,12 +726,25 @@ impl crate::types::geometry::Camera {
     }
 }
 
+/// The largest size of a distortion coefficient taken for a lens's: OpenCV calibrations of
+/// wide-angle lenses give a few units; 1e6 is a garbage field, and rectifying with it maps
+/// every pixel off the image.
+pub const MAX_DISTORTION_COEFFICIENT: f64 = 100.0;
+
 /// Why a CameraInfo's distortion cannot be used.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum DistortionError {
     /// A coefficient is NaN or infinite.
     #[error("CameraInfo d {d:?} is not finite")]
     NotFinite {
+        /// The coefficients as given.
+        d: Vec<f64>,
+    },
+    /// A coefficient beyond any lens's (a wide-angle lens's are a few units at most).
+    #[error(
+        "CameraInfo d {d:?} holds a coefficient beyond {MAX_DISTORTION_COEFFICIENT} in size: not a lens's"
+    )]
+    Implausible {
         /// The coefficients as given.
         d: Vec<f64>,
     },
@@ -758,6 +771,9 @@ impl crate::types::lens::Distortion {
         }
         if !ci.d.iter().all(|v| v.is_finite()) {
             return Err(DistortionError::NotFinite { d: ci.d.clone() });
+        }
+        if ci.d.iter().any(|v| v.abs() > MAX_DISTORTION_COEFFICIENT) {
+            return Err(DistortionError::Implausible { d: ci.d.clone() });
         }
         let model = ci.distortion_model.as_str();
         let radial_tangential = model == "plumb_bob"

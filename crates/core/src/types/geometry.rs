@@ -94,7 +94,8 @@ pub struct Camera {
 
 impl Camera {
     /// From a K matrix (row-major, as in CameraInfo); `None` unless width, height and focal
-    /// lengths are positive and finite.
+    /// lengths are positive and finite and the principal point lies within an image's size
+    /// of the image.
     pub fn from_k(width: u32, height: u32, k: [f64; 9]) -> Option<Self> {
         let c = Self {
             width,
@@ -104,11 +105,17 @@ impl Camera {
             cx: k[2],
             cy: k[5],
         };
+        // The principal point within an image's size of the image: a camera whose axis
+        // meets the image plane farther out (cx 1e9 from a garbage field) sees nothing the
+        // grid holds, and the replay only said so at the end.
+        let (w, h) = (f64::from(width), f64::from(height));
         let ok = c.width > 0
             && c.height > 0
             && [c.fx, c.fy, c.cx, c.cy].iter().all(|v| v.is_finite())
             && c.fx > 0.0
-            && c.fy > 0.0;
+            && c.fy > 0.0
+            && (-w..=2.0 * w).contains(&c.cx)
+            && (-h..=2.0 * h).contains(&c.cy);
         ok.then_some(c)
     }
 

@@ -262,15 +262,17 @@ fn tum_intrinsics(
 ) -> Result<Intrinsics, ImportError> {
     let [fx, fy, cx, cy] = camera;
     let d = distortion.to_plumb_bob();
+    let lens = crate::io::msgs::MAX_DISTORTION_COEFFICIENT;
     Camera::from_k(width, height, [fx, 0.0, cx, 0.0, fy, cy, 0.0, 0.0, 1.0])
-        .filter(|_| d.iter().all(|v| v.is_finite()))
+        .filter(|_| d.iter().all(|v| v.is_finite() && v.abs() <= lens))
         .map(|camera| Intrinsics { camera, distortion })
         .ok_or_else(|| {
             ImportError::File(CaptureError::Invalid {
                 path: trajectory.into(),
                 what: format!(
-                    "--camera {fx},{fy},{cx},{cy}: focal lengths must be positive and all finite \
-                 (and the distortion finite)"
+                    "--camera {fx},{fy},{cx},{cy} on {width} x {height} images: focal lengths must \
+                 be positive and all finite, the principal point within an image's size of the \
+                 image (and the distortion's coefficients at most {lens} in size)"
                 ),
             })
         })
