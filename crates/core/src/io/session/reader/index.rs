@@ -71,6 +71,9 @@ struct ScanState {
     scanned: u64,
     /// The message count of the summary's Statistics record, when the file has one.
     stated: Option<u64>,
+    /// Whether the data section's end record was read: what follows is the summary, which
+    /// indexes the data but holds none of it.
+    data_end: bool,
 }
 
 /// Whether a scan step lets the scan go on.
@@ -187,11 +190,23 @@ impl SessionReader {
                     if opcode == op::CHUNK {
                         self.take_chunk(data, offset_bytes, &mut st)?
                     } else {
-                        let record = self.parse(opcode, data)?;
-                        self.take_top_level(record, offset_bytes, data.len(), &mut st)?;
-                        self.bytes_intact = st.fed_bytes;
-                        Step::Go
+                        match self.parse(opcode, data) {
+                            Ok(record) => {
+                                self.take_top_level(record, offset_bytes, data.len(), &mut st)?;
+                                self.bytes_intact = st.fed_bytes;
+                                st.data_end |= opcode == op::DATA_END;
+                                Step::Go
+                            }
+                            Err(e) if st.data_end && st.ends_with_magic => {
+                                self.summary_damaged(&e.to_string())
+                            }
+                            Err(e) => return Err(e),
+                        }
                     }
+                }
+                // A file cut inside its summary is truncated, and said so as any other.
+                Err(source) if st.data_end && st.ends_with_magic => {
+                    self.summary_damaged(&source.to_string())
                 }
                 Err(source) => {
                     let ran_out = self.runs_out(&source, &st);
@@ -378,6 +393,18 @@ impl SessionReader {
     /// `UnexpectedEoc` when its compressed stream stops short).
     fn chunk_runs_out(e: &McapError) -> bool {
         matches!(e, McapError::UnexpectedEof | McapError::UnexpectedEoc)
+    }
+
+    /// Damage after the data section's end record: every message was read, only the
+    /// summary (an index of the data) is lost. A warning, and the scan stops; a zeroed summary
+    /// refused the whole file.
+    fn summary_damaged(&mut self, what: &str) -> Step {
+        self.warnings.push(format!(
+            "{}: the summary section after byte {} does not read ({what}); every message up to the data section's end was read",
+            self.path.display(),
+            self.bytes_intact
+        ));
+        Step::Stop
     }
 
     /// The scan's reaction to a reader error: a warning and stop for truncation, else the

@@ -1,4 +1,5 @@
-//! How the reader words a cut at a record boundary (a unit test of its truncation warning).
+//! How the reader words a cut at a record boundary and a damaged summary (unit tests of its
+//! warnings).
 
 use super::*;
 
@@ -20,6 +21,35 @@ fn a_cut_between_records_says_what_is_missing() {
         w.contains(&format!("from the first {cut} of {cut} bytes"))
             && w.contains("it ends after a whole record, without the summary and footer")
             && !w.contains("the rest is lost"),
+        "{w}"
+    );
+}
+
+/// A summary zeroed in a file that still ends with its footer and magic: every message is
+/// read, with a warning (the whole file was refused, its data intact).
+#[test]
+fn a_damaged_summary_keeps_every_message() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("whole.mcap");
+    let mut bytes = write(&path, small_chunks(), &increasing(300));
+    // Footer: opcode, length, summary_start, summary_offset_start, crc; then the magic.
+    let footer = bytes.len() - 8 - (1 + 8 + 8 + 8 + 4);
+    let summary_start = u64::from_le_bytes(bytes[footer + 9..footer + 17].try_into().unwrap());
+    assert!(summary_start > 0 && (summary_start as usize) < footer);
+    bytes[summary_start as usize..footer].fill(0);
+    let zeroed = dir.path().join("zeroed.mcap");
+    std::fs::write(&zeroed, &bytes).unwrap();
+    let reader = SessionReader::open(&zeroed, Topics::default()).unwrap();
+    assert_eq!(read_all(&reader), old_order(&std::fs::read(&path).unwrap()));
+    // Zero bytes read as empty records of opcode 0 until the footer's: the damage is met
+    // somewhere after the summary's start.
+    assert!(reader.bytes_intact >= summary_start);
+    let w = &reader.warnings[0];
+    assert!(
+        w.contains(&format!(
+            "the summary section after byte {} does not read",
+            reader.bytes_intact
+        )) && w.ends_with("every message up to the data section's end was read"),
         "{w}"
     );
 }
