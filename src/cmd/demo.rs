@@ -82,9 +82,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         &crate::viz::rrd_beside(&report_path),
     )
     .context("demo: fuse")?;
-    print_summary(&f);
     let grid_path = args.out.join("grid.npy");
     write_outputs(&f, Some(&report_path), Some(&grid_path))?;
+    print_summary(&f);
 
     if let Some(e) = evaluation(&f, &report_path) {
         say!("== against ground truth");

@@ -386,6 +386,12 @@ fn check_grid_flags(args: &FuseArgs) -> anyhow::Result<()> {
 /// Writes the report and grid where asked; the grid's size is checked before anything is
 /// written.
 pub fn write_outputs(f: &Fused, report: Option<&Path>, grid: Option<&Path>) -> anyhow::Result<()> {
+    // Every file before any line of text: a reader that goes away (`fuse ... | head -1`)
+    // ends the command on its next line (SIGPIPE), which must not lose a file.
+    if let Some(p) = report {
+        objloc_core::io::output::write_atomic_with(p, |w| f.report.write_json(w))
+            .with_context(|| format!("writing the report {}", p.display()))?;
+    }
     if let Some(p) = grid {
         let g = &f.outcome.grid;
         let region = g
@@ -411,10 +417,6 @@ pub fn write_outputs(f: &Fused, report: Option<&Path>, grid: Option<&Path>) -> a
                 o[2]
             );
         }
-    }
-    if let Some(p) = report {
-        objloc_core::io::output::write_atomic_with(p, |w| f.report.write_json(w))
-            .with_context(|| format!("writing the report {}", p.display()))?;
     }
     Ok(())
 }
@@ -641,8 +643,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         &default_rrd,
     )
     .context("fuse")?;
-    print_summary(&f);
     write_outputs(&f, args.report.as_deref(), args.grid.as_deref())?;
+    print_summary(&f);
     let t = &f.report.timing_ms;
     say!(
         "time: load {:.1} ms, replay {:.1} ms",

@@ -868,6 +868,28 @@ fn outputs_never_overwrite_inputs_or_each_other() {
         &[],
     ));
     assert!(nested.exists());
+    // Files before text: when the first line reaches a reader (`fuse ... | head -1`, which
+    // then goes away and ends the command on its next line), the report and grid are written.
+    let (first_report, first_grid) = (dir.path().join("first.json"), dir.path().join("first.npy"));
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_objloc"))
+        .args(["fuse", p(&session), "--model", p(&model), "--no-rerun"])
+        .args(["--report", p(&first_report), "--grid", p(&first_grid)])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut line = String::new();
+    std::io::BufRead::read_line(
+        &mut std::io::BufReader::new(child.stdout.take().unwrap()),
+        &mut line,
+    )
+    .unwrap();
+    assert!(line.starts_with("fused "), "{line}");
+    assert!(
+        first_report.exists() && first_grid.exists(),
+        "text came first"
+    );
+    let _ = child.wait();
     // A device is refused before the replay (renamed over, /dev/null became a file); a
     // directory too.
     for (flag, target) in [("--report", "/dev/null"), ("--grid", "/dev/null")] {
