@@ -111,15 +111,18 @@ impl TopicArgs {
 /// (a /cmd_vel of NaN in every message gave 42 identical lines) are one line with the first
 /// time and how many more there were.
 pub(crate) fn print_warnings<'a>(warnings: impl IntoIterator<Item = &'a String>) {
-    let mut kinds: Vec<(String, &String, usize)> = Vec::new();
+    // In order of first appearance; the map only finds a kind (a long replay can warn
+    // thousands of times).
+    let mut kinds: Vec<(&String, usize)> = Vec::new();
+    let mut index: std::collections::BTreeMap<String, usize> = std::collections::BTreeMap::new();
     for w in warnings {
-        let key = without_log_time(w);
-        match kinds.iter_mut().find(|(k, _, _)| *k == key) {
-            Some(kind) => kind.2 += 1,
-            None => kinds.push((key, w, 0)),
+        let next = kinds.len();
+        match *index.entry(without_log_time(w)).or_insert(next) {
+            k if k < next => kinds[k].1 += 1,
+            _ => kinds.push((w, 0)),
         }
     }
-    for (_, first, more) in kinds {
+    for (first, more) in kinds {
         match more {
             0 => eprintln!("warning: {first}"),
             n => eprintln!("warning: {first} (and {n} more like it at later times)"),

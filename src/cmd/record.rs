@@ -251,10 +251,12 @@ fn distortion(s: &str) -> anyhow::Result<Distortion> {
             [k1, k2, p1, p2, 0.0]
         }
     };
-    // Checked here, as --camera is: a NaN was refused later as the trajectory's --camera.
-    if !v.iter().all(|k| k.is_finite()) {
+    // Checked here, as --camera is, by the rule CameraInfo `d` follows: a NaN was refused
+    // later, and as the trajectory's --camera.
+    if !objloc_core::io::msgs::lens_coefficients_plausible(&v) {
         return Err(UsageError(format!(
-            "--distortion {s:?}: every coefficient must be finite"
+            "--distortion {s:?}: every coefficient must be finite and at most {} in size",
+            objloc_core::io::msgs::MAX_DISTORTION_COEFFICIENT
         ))
         .into());
     }

@@ -558,8 +558,6 @@ fn bad_inputs_fail_with_one_line_and_no_output() {
     assert!(line.contains("is a fuse report, not a model"), "{line}");
 }
 
-/// The tile ROC AUC in what `objloc predict` printed.
-/// The last tile AUC `predict` printed: that of probs.npy.
 #[test]
 fn channels_and_light_augmentation_train_save_load_and_predict() {
     let dir = tempfile::tempdir().unwrap();

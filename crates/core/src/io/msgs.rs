@@ -731,6 +731,13 @@ impl crate::types::geometry::Camera {
 /// every pixel off the image.
 pub const MAX_DISTORTION_COEFFICIENT: f64 = 100.0;
 
+/// Whether distortion coefficients can be a lens's: finite, none beyond
+/// [`MAX_DISTORTION_COEFFICIENT`] in size (the rule of CameraInfo `d` and of imports).
+pub fn lens_coefficients_plausible(d: &[f64]) -> bool {
+    d.iter()
+        .all(|v| v.is_finite() && v.abs() <= MAX_DISTORTION_COEFFICIENT)
+}
+
 /// Why a CameraInfo's distortion cannot be used.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum DistortionError {
@@ -772,7 +779,7 @@ impl crate::types::lens::Distortion {
         if !ci.d.iter().all(|v| v.is_finite()) {
             return Err(DistortionError::NotFinite { d: ci.d.clone() });
         }
-        if ci.d.iter().any(|v| v.abs() > MAX_DISTORTION_COEFFICIENT) {
+        if !lens_coefficients_plausible(&ci.d) {
             return Err(DistortionError::Implausible { d: ci.d.clone() });
         }
         let model = ci.distortion_model.as_str();

@@ -264,7 +264,7 @@ fn tum_intrinsics(
     let d = distortion.to_plumb_bob();
     let lens = crate::io::msgs::MAX_DISTORTION_COEFFICIENT;
     Camera::from_k(width, height, [fx, 0.0, cx, 0.0, fy, cy, 0.0, 0.0, 1.0])
-        .filter(|_| d.iter().all(|v| v.is_finite() && v.abs() <= lens))
+        .filter(|_| crate::io::msgs::lens_coefficients_plausible(&d))
         .map(|camera| Intrinsics { camera, distortion })
         .ok_or_else(|| {
             ImportError::File(CaptureError::Invalid {
