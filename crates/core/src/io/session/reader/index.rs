@@ -74,6 +74,12 @@ struct ScanState {
     /// Whether the data section's end record was read: what follows is the summary, which
     /// indexes the data but holds none of it.
     data_end: bool,
+    /// Where the first record after the data section's end begins: the summary's start, or
+    /// the footer's own when the file has no summary (the footer must then say 0).
+    after_data_end_bytes: Option<u64>,
+    /// What is wrong with the footer's summary offset, said unless the summary's message
+    /// count already tells that records were cut out (which moves the summary too).
+    footer_warning: Option<String>,
 }
 
 /// Whether a scan step lets the scan go on.
@@ -192,6 +198,12 @@ impl SessionReader {
                     } else {
                         match self.parse(opcode, data) {
                             Ok(record) => {
+                                if st.data_end && st.after_data_end_bytes.is_none() {
+                                    st.after_data_end_bytes = Some(offset_bytes);
+                                }
+                                if let Record::Footer(f) = &record {
+                                    st.footer_warning = self.footer_problem(f, offset_bytes, &st);
+                                }
                                 self.take_top_level(record, offset_bytes, data.len(), &mut st)?;
                                 self.bytes_intact = st.fed_bytes;
                                 st.data_end |= opcode == op::DATA_END;
@@ -229,11 +241,44 @@ impl SessionReader {
                 st.scanned
             ));
         }
+        if let Some(w) = st.footer_warning.take().filter(|_| self.warnings.is_empty()) {
+            self.warnings.push(w);
+        }
         if self.channels.is_empty() && self.stats.is_empty() && self.warnings.is_empty() {
             self.warnings
                 .push("file holds no channels and no messages".to_owned());
         }
         Ok(())
+    }
+
+    /// The footer's summary offset must point where the summary begins (0 without one):
+    /// this scan does not need it, but `inspect --quick` and other tools seek by it, so a
+    /// wrong one is said (a footer pointing past the end read silently before).
+    fn footer_problem(
+        &self,
+        footer: &mcap::records::Footer,
+        footer_bytes: u64,
+        st: &ScanState,
+    ) -> Option<String> {
+        if !st.data_end {
+            return None; // no data end record: where the summary would begin is not known
+        }
+        let expected = match st.after_data_end_bytes {
+            Some(at) if at != footer_bytes => at,
+            _ => 0,
+        };
+        (footer.summary_start != expected).then(|| {
+            format!(
+                "{}: the footer says the summary starts at byte {}, but {}; tools that seek by it (inspect --quick, mcap info) will fail, and this scan read every message without it",
+                self.path.display(),
+                footer.summary_start,
+                if expected == 0 {
+                    "the file has no summary (it should say 0)".to_owned()
+                } else {
+                    format!("it starts at byte {expected}")
+                }
+            )
+        })
     }
 
     /// One record's fields, or an error naming the last message before it.

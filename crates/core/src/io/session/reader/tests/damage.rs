@@ -53,3 +53,33 @@ fn a_damaged_summary_keeps_every_message() {
         "{w}"
     );
 }
+
+/// A footer whose summary offset points past the file's end (a writer's bug, or damage):
+/// every message is read by the scan, and the warning names the offset and the true start
+/// (it passed silently outside `inspect --quick`). An intact file has no warning.
+#[test]
+fn a_footer_pointing_elsewhere_is_said() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("whole.mcap");
+    let mut bytes = write(&path, small_chunks(), &increasing(300));
+    assert!(
+        SessionReader::open(&path, Topics::default())
+            .unwrap()
+            .warnings
+            .is_empty()
+    );
+    let footer = bytes.len() - 8 - (1 + 8 + 8 + 8 + 4);
+    let summary_start = u64::from_le_bytes(bytes[footer + 9..footer + 17].try_into().unwrap());
+    bytes[footer + 9..footer + 17].copy_from_slice(&1_000_000_000_000u64.to_le_bytes());
+    let bad = dir.path().join("bad-footer.mcap");
+    std::fs::write(&bad, &bytes).unwrap();
+    let reader = SessionReader::open(&bad, Topics::default()).unwrap();
+    assert_eq!(read_all(&reader), old_order(&std::fs::read(&path).unwrap()));
+    assert_eq!(reader.warnings.len(), 1, "{:?}", reader.warnings);
+    let w = &reader.warnings[0];
+    assert!(
+        w.contains("the footer says the summary starts at byte 1000000000000")
+            && w.contains(&format!("but it starts at byte {summary_start}")),
+        "{w}"
+    );
+}
