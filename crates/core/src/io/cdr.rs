@@ -63,6 +63,17 @@ pub enum CdrError {
         /// Where the string's bytes start, after its length prefix.
         offset: usize,
     },
+    /// A field holds a value its type forbids, e.g. a `builtin_interfaces/Time` nanosec of
+    /// 1e9 or more (ROS requires it below one second; read as is, the stamp moved seconds).
+    #[error("{what} is {value}, {rule}")]
+    OutOfRange {
+        /// The field, e.g. `header.stamp.nanosec`.
+        what: &'static str,
+        /// The value read.
+        value: u64,
+        /// What the type requires.
+        rule: &'static str,
+    },
     /// 4 or more bytes are left after the whole message was decoded: the schema does not
     /// match the payload (fewer are taken as padding).
     #[error("{count} bytes left over after decoding {what} (payload {len} bytes)")]

@@ -51,6 +51,13 @@ impl Header {
     fn decode(r: &mut CdrReader) -> Result<Self, CdrError> {
         let sec = r.i32("header.stamp.sec")?;
         let nanosec = r.u32("header.stamp.nanosec")?;
+        if nanosec >= 1_000_000_000 {
+            return Err(CdrError::OutOfRange {
+                what: "header.stamp.nanosec",
+                value: u64::from(nanosec),
+                rule: "not below 1e9 as builtin_interfaces/Time requires",
+            });
+        }
         let frame_id = r.string("header.frame_id")?;
         Ok(Self {
             stamp_ns: time_to_ns(sec, nanosec),
@@ -872,6 +879,24 @@ mod tests {
         // header (4+4+4+5 "odom\0") = 17 -> pad to 20, child (4+10) = 34, pad to 40 for f64.
         // 7 + 36 + 6 + 36 doubles = 85 doubles.
         assert_eq!(b.len(), 4 + 40 + 85 * 8);
+    }
+
+    /// ROS requires a stamp's nanosec below 1e9; 1999999999 read as is moved the frame 2 s
+    /// later without a word.
+    #[test]
+    fn a_nanosec_of_a_second_or_more_is_refused() {
+        let m = PoseStamped {
+            header: Header::new(1_500_000_000, "odom"),
+            pose: Pose::default(),
+        };
+        let mut b = m.to_cdr();
+        b[8..12].copy_from_slice(&999_999_999u32.to_le_bytes());
+        assert_eq!(PoseStamped::from_cdr(&b).unwrap().header.stamp_ns, 1_999_999_999);
+        b[8..12].copy_from_slice(&1_999_999_999u32.to_le_bytes());
+        assert_eq!(
+            PoseStamped::from_cdr(&b).unwrap_err().to_string(),
+            "header.stamp.nanosec is 1999999999, not below 1e9 as builtin_interfaces/Time requires"
+        );
     }
 
     #[test]

@@ -601,7 +601,10 @@ fn raw_to_rgb8(img: &Image) -> Result<Rgb8, FrameError> {
             channels,
         });
     }
-    if img.data.len() < step * (h - 1) + w * channels {
+    // The last row may lack its padding; more than `step * height` bytes is a wrong size or
+    // encoding (rgb bytes under a mono8 header read as a third of the picture, silently).
+    let least = step.saturating_mul(h.saturating_sub(1)).saturating_add(w * channels);
+    if img.data.len() < least || img.data.len() > step.saturating_mul(h) {
         return Err(FrameError::Length {
             width: w,
             height: h,
@@ -709,6 +712,36 @@ mod tests {
             }),
         };
         assert_eq!(raw.encoded_file(), None);
+    }
+
+    /// A raw image's bytes must fit its declared size: the last row may lack its padding,
+    /// but rgb bytes under a mono8 header (three times the bytes) were read as a third of
+    /// the picture without a word.
+    #[test]
+    fn a_raw_image_with_more_bytes_than_its_size_is_refused() {
+        let img = |encoding: &str, step: u32, data: Vec<u8>| crate::io::msgs::Image {
+            header: crate::io::msgs::Header {
+                stamp_ns: 0,
+                frame_id: String::new(),
+            },
+            height: 2,
+            width: 2,
+            encoding: encoding.into(),
+            is_bigendian: 0,
+            step,
+            data,
+        };
+        let grey = raw_to_rgb8(&img("mono8", 2, vec![1, 2, 3, 4])).unwrap();
+        assert_eq!(grey.data, vec![1, 1, 1, 2, 2, 2, 3, 3, 3, 4, 4, 4]);
+        // Padded rows of 4 bytes, the last one unpadded: 6 bytes.
+        let padded = raw_to_rgb8(&img("mono8", 4, vec![1, 2, 0, 0, 3, 4])).unwrap();
+        assert_eq!(padded.data, grey.data);
+        let err = raw_to_rgb8(&img("mono8", 2, vec![7; 12])).unwrap_err();
+        assert_eq!(
+            err.to_string(),
+            "raw image of 2 x 2 (mono8) needs 4 bytes, has 12"
+        );
+        assert!(raw_to_rgb8(&img("mono8", 2, vec![7; 3])).is_err());
     }
 
     /// A JPEG of 8 x 8 grey pixels with an EXIF APP1 segment whose orientation tag is
