@@ -458,6 +458,41 @@ impl Scene {
         {
             return Err("path.background_stops must be finite".into());
         }
+        self.validate_path_in_room()
+    }
+
+    /// Every place the robot stands (the tour's circle, whose chords it drives; the train
+    /// views; the background stops) lies inside the room, which is centred on the origin: a
+    /// tour radius of 100 m in a 7 m room rendered the walls from outside without a word.
+    fn validate_path_in_room(&self) -> Result<(), String> {
+        let path = &self.path;
+        let half = [self.room.size_m[0] / 2.0, self.room.size_m[1] / 2.0];
+        let inside = |x: f64, y: f64| x.abs() < half[0] && y.abs() < half[1];
+        let room = format!("the room spans x and y within +-{} and +-{} m", half[0], half[1]);
+        let [tx, ty] = path.target_m;
+        if tx.abs() + path.tour_radius_m >= half[0] || ty.abs() + path.tour_radius_m >= half[1] {
+            return Err(format!(
+                "path.tour_radius_m {} m round target_m {:?} leaves the room ({room})",
+                path.tour_radius_m, path.target_m
+            ));
+        }
+        for (i, v) in path.train_views.iter().enumerate() {
+            let b = v.bearing_deg.to_radians();
+            let (x, y) = (tx + v.distance_m * b.cos(), ty + v.distance_m * b.sin());
+            if !inside(x, y) {
+                return Err(format!(
+                    "path.train_views[{i}] stands at ({x:.2}, {y:.2}) m, outside the room ({room})"
+                ));
+            }
+        }
+        for (i, st) in path.background_stops.iter().enumerate() {
+            if !inside(st.x_m, st.y_m) {
+                return Err(format!(
+                    "path.background_stops[{i}] at ({}, {}) m is outside the room ({room})",
+                    st.x_m, st.y_m
+                ));
+            }
+        }
         Ok(())
     }
 }
@@ -526,6 +561,36 @@ mod tests {
         assert!(
             e.starts_with("light.direction [0.0, 0.0, 0.0] must be finite and non-zero"),
             "{e}"
+        );
+    }
+
+    /// The robot must stand inside the room: a 100 m tour radius in the 7 m chair room was
+    /// recorded without a word.
+    #[test]
+    fn a_path_outside_the_room_is_refused() {
+        let chair = || Scene::from_json(builtin_json("chair").unwrap()).unwrap();
+        let mut s = chair();
+        s.path.tour_radius_m = 100.0;
+        assert_eq!(
+            s.validate().unwrap_err(),
+            format!(
+                "path.tour_radius_m 100 m round target_m {:?} leaves the room (the room spans x and y within +-3.5 and +-3.5 m)",
+                s.path.target_m
+            )
+        );
+        let mut s = chair();
+        s.path.train_views[1].distance_m = 9.0;
+        assert!(
+            s.validate()
+                .unwrap_err()
+                .starts_with("path.train_views[1] stands at ("),
+        );
+        let mut s = chair();
+        s.path.background_stops[0].x_m = -3.6;
+        assert!(
+            s.validate()
+                .unwrap_err()
+                .starts_with("path.background_stops[0] at (-3.6, "),
         );
     }
 }
