@@ -113,6 +113,11 @@ pub struct FuseArgs {
     /// Evidence every cell of an object must have, as a fraction of the grid's highest.
     #[arg(long, default_value_t = ObjectParams::default().grow_fraction, value_parser = parse_fraction)]
     pub grow_fraction: f32,
+    /// Report only objects as strong as the grid's peak rule makes them: do not also search
+    /// the final grid for weaker instances apart from them (a twin on the floor that fewer
+    /// frames saw; docs/fuser.md, Objects).
+    #[arg(long)]
+    pub no_weaker_instances: bool,
     /// Range limit of a frame's update: it stops at the depth where a tile's footprint
     /// exceeds this many cells (`off`: no limit). Beyond it one tile's value covers a wall of
     /// cells and locates nothing, and a building-sized grid would store every cell in view.
@@ -218,6 +223,7 @@ impl FuseArgs {
                 min_views: self.min_views,
                 seed_fraction: self.seed_fraction,
                 grow_fraction: self.grow_fraction,
+                weaker_instances: !self.no_weaker_instances,
                 ..ObjectParams::default()
             },
             poses: self.poses,
@@ -295,7 +301,8 @@ pub fn fuse(
         // abandoned below); a logging error fails the command.
         match result {
             Ok(o) => {
-                if let Err(e) = observer.finish() {
+                let logged = observer.final_objects(&o.objects);
+                if let Err(e) = logged.and_then(|()| observer.finish()) {
                     stream.abandon();
                     return Err(anyhow::Error::new(e).context("streaming the replay to Rerun"));
                 }
@@ -510,6 +517,11 @@ pub fn print_summary(f: &Fused) {
             o.peak_probability,
             o.mean_probability
         );
+        if let Some(f) = o.weaker_instance {
+            say!(
+                "  a weaker instance: its evidence peaks at {f:.2} of the grid's highest (found apart from the objects above it, every frame that saw it agreeing: less certain than they are)"
+            );
+        }
         if let (Some(d), Some(e)) = (&o.from_detections, &o.extent_centre_m) {
             say!(
                 "  located from {} frames' detection boxes (rays {:.1} deg apart at most, rms miss {:.4}{m}); the extent's centre was ({:.3}, {:.3}, {:.3})",

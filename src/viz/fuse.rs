@@ -14,6 +14,7 @@ use rerun::RecordingStream;
 
 use super::{TIMELINE_FRAME, TIMELINE_LOG_TIME, VizError, log_err};
 use objloc_core::fuse::grid::{Grid, GridSpec};
+use objloc_core::fuse::objects::Object;
 use objloc_core::fuse::refine::Verdict;
 use objloc_core::fuse::replay::{FrameStep, Observer, ObserverError, SessionData, StepImage};
 use objloc_core::io::msgs::iso_from_pose;
@@ -62,6 +63,9 @@ impl Default for VizOptions {
 const TRUTH_RGB: [u8; 3] = [255, 140, 0];
 const ESTIMATE_RGB: [u8; 3] = [0, 200, 255];
 const ODOM_RGB: [u8; 3] = [220, 220, 220];
+/// The final objects' boxes; a weaker instance's (less certain) in [`WEAKER_RGB`].
+const FINAL_RGB: [u8; 3] = [0, 120, 255];
+const WEAKER_RGB: [u8; 3] = [200, 100, 255];
 /// The refined trajectory: green, beside odometry's grey and the truth's orange.
 const REFINED_RGB: [u8; 3] = [60, 200, 90];
 
@@ -118,6 +122,9 @@ enum Message {
     Start(Box<StartMessage>),
     Frame(Box<FrameMessage>),
     Rollback,
+    /// The objects of the final grid (with any weaker instances, which the frames' lists
+    /// do not look for).
+    Final(Vec<Object>),
 }
 
 /// What is static in the recording.
@@ -169,6 +176,11 @@ impl FuseViz {
             options,
             worker: None,
         }
+    }
+
+    /// Logs the final grid's objects (`Outcome::objects`), once the replay is done.
+    pub fn final_objects(&mut self, objects: &[Object]) -> Result<(), VizError> {
+        self.send(Message::Final(objects.to_vec()))
     }
 
     /// Waits for the logging thread to log every frame handed to it; its error, if it had
@@ -450,7 +462,30 @@ impl Logger {
             Message::Start(m) => self.start(&m),
             Message::Frame(m) => self.frame(&m),
             Message::Rollback => self.rollback(),
+            Message::Final(objects) => self.final_objects(&objects),
         }
+    }
+
+    /// The final objects, static: what the replay answers, whichever frame is shown.
+    fn final_objects(&self, objects: &[Object]) -> Result<(), VizError> {
+        let rgb = |o: &Object| {
+            let c = if o.weaker_instance.is_some() { WEAKER_RGB } else { FINAL_RGB };
+            rerun::Color::from_rgb(c[0], c[1], c[2])
+        };
+        let boxes = rerun::Boxes3D::from_mins_and_sizes(
+            objects.iter().map(|b| b.bbox_min_m.map(|x| x as f32)),
+            objects
+                .iter()
+                .map(|b| [0, 1, 2].map(|a| (b.bbox_max_m[a] - b.bbox_min_m[a]) as f32)),
+        )
+        .with_labels(objects.iter().enumerate().map(|(i, o)| match o.weaker_instance {
+            Some(f) => format!("object {i} (a weaker instance: peak {f:.2} of the grid's)"),
+            None => format!("object {i}"),
+        }))
+        .with_colors(objects.iter().map(rgb));
+        self.rec
+            .log_static("world/objects/final", &boxes)
+            .map_err(log_err)
     }
 
     fn start(&self, m: &StartMessage) -> Result<(), VizError> {

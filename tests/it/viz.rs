@@ -277,6 +277,12 @@ fn fuse_recording_verifies_holds_the_documented_entities_and_replays_equal() {
             ][..],
         ),
         ("/world", &["ViewCoordinates:xyz"][..]),
+        // The final grid's objects (with any weaker instances), logged once the replay is
+        // done.
+        (
+            "/world/objects/final",
+            &["Boxes3D:centers", "Boxes3D:labels", "Boxes3D:colors"][..],
+        ),
     ] {
         let cols = columns(&v, entity);
         for c in want_cols {

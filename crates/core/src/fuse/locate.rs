@@ -270,6 +270,7 @@ mod tests {
             from_detections: None,
             extent_centre_m: None,
             not_from_detections: None,
+            weaker_instance: None,
         }
     }
 

@@ -11,7 +11,7 @@ use super::*;
 /// floor the frames saw (with the floor term).
 pub(super) fn check_refinement(ctx: &Context<'_>, pass: &Pass) -> RefinementCheck {
     let data = &ctx.data;
-    let objects = find_objects(&pass.fuser.grid, &pass.fuser.options.objects);
+    let objects = find_objects(&pass.fuser.grid, &pass.fuser.options.objects.per_frame());
     let seeds: Vec<[f64; 3]> = objects.iter().map(|o| o.mass_centroid_m).collect();
     let odometry: Vec<Iso3> = ctx.prepared.iter().map(|p| p.odometry).collect();
     // The /odom rays may pass as far from the refined objects as the poses differ.

@@ -178,7 +178,7 @@ fn step(
     let (fused, ()) = rayon::join(
         || {
             let segments = fuse_one(fuser, data, &ctx.prepared, poses, index, localised)?;
-            Ok((segments, find_objects(&fuser.grid, &options.objects)))
+            Ok((segments, find_objects(&fuser.grid, &options.objects.per_frame())))
         },
         || add_floor(map, check, &floor, &odom_from_base, &p.odometry),
     );
@@ -409,12 +409,12 @@ fn localise(
             .objects
             .min_views
             .min(u16::try_from(index).unwrap_or(u16::MAX)),
-        ..options.objects
+        ..options.objects.per_frame()
     };
     // The grid is the one the previous step found `last_objects` in: with the same rule,
     // the same objects.
     let found;
-    let objects = if params == options.objects {
+    let objects = if params == options.objects.per_frame() {
         &tracker.last_objects
     } else {
         found = find_objects(&pass.fuser.grid, &params);
