@@ -292,14 +292,26 @@ fn label(grid: &Grid, states: &mut States, seeds: &[usize], min_cells: usize) ->
         }
         stack.push(seed);
         let mut members = Vec::new();
+        let [nx, ny, nz] = spec.dims.map(|n| n as i64);
         while let Some(idx) = stack.pop() {
             members.push(idx);
-            for [a, b, c] in neighbours(spec.ijk(idx), spec.dims) {
-                if let Some(st) = states.at(grid, a, b, c)
-                    && *st == GROW
-                {
-                    *st = DONE;
-                    stack.push(spec.index(a, b, c));
+            let [i, j, k] = spec.ijk(idx).map(|x| x as i64);
+            // Explicit loops, not `neighbours`: this fill runs after every frame over every
+            // object's cells, and the iterator's closures cost the 1 000-stop replay 6 %.
+            for a in i - 1..=i + 1 {
+                for b in j - 1..=j + 1 {
+                    for c in k - 1..=k + 1 {
+                        if a < 0 || b < 0 || c < 0 || a >= nx || b >= ny || c >= nz {
+                            continue;
+                        }
+                        let (a, b, c) = (a as usize, b as usize, c as usize);
+                        if let Some(st) = states.at(grid, a, b, c)
+                            && *st == GROW
+                        {
+                            *st = DONE;
+                            stack.push(spec.index(a, b, c));
+                        }
+                    }
                 }
             }
         }
