@@ -903,6 +903,25 @@ fn non_finite_poses_intrinsics_and_twists() {
         &["topic /cmd_vel", &at_frame(0), "beyond any ground robot's"],
     );
     assert!(run.stdout.contains("fused 4 of 4 frames"), "{}", run.stdout);
+    // An /odom pose 1e300 m away made the default bounds a grid of 2^64 cells, refused with
+    // saturated numbers and no topic: skipped as no frame's.
+    let odom_far = write_tour(dir.path(), "odom-far.mcap", |m| {
+        let i = find(m, "/odom", 1);
+        let mut o = odometry(1);
+        o.pose.position[0] = 1e300;
+        m[i].payload = o.to_cdr();
+    });
+    let run = fuse(dir.path(), &odom_far, &[]);
+    assert_warning(
+        &run,
+        &odom_far,
+        &[
+            "topic /odom",
+            &at_frame(1),
+            "position x = 1e300 m is beyond 1e8 m of the origin",
+        ],
+    );
+    assert!(run.stdout.contains("fused 3 of 4 frames"), "{}", run.stdout);
 }
 
 /// A label rectangle past the image (a garbage width of 2^32 - 1 px) is trained on as the

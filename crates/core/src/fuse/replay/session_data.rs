@@ -21,6 +21,25 @@ pub const UNIT_QUATERNION_TOLERANCE: f64 = 0.01;
 /// overflowed the floor map's cell index).
 pub const MAX_COMMAND_SPEED: f64 = 100.0;
 
+/// A pose further than this from its frame's origin (metres, any axis) is garbage: no frame on
+/// Earth reaches it (UTM northings stay below 1e7 m). An /odom pose 1e300 m away made the
+/// default bounds a grid of 2^64 cells, refused with saturated numbers and no topic.
+pub const MAX_POSITION_M: f64 = 1e8;
+
+/// Why a pose cannot be used, or None: not finite, a zero quaternion, or beyond
+/// [`MAX_POSITION_M`].
+fn pose_problem(pose: &crate::io::msgs::Pose) -> Option<String> {
+    if iso_from_pose(pose).is_none() {
+        return Some("pose is not finite or has a zero quaternion".into());
+    }
+    let axis = pose.position.iter().position(|v| v.abs() > MAX_POSITION_M)?;
+    Some(format!(
+        "position {} = {:e} m is beyond {MAX_POSITION_M:e} m of the origin, further than any frame on Earth",
+        ["x", "y", "z"][axis],
+        pose.position[axis]
+    ))
+}
+
 /// Margin around the camera positions for the default bounds, metres.
 pub const DEFAULT_BOUNDS_MARGIN_M: f64 = 0.25;
 /// Smallest side of the default bounds in x and y, metres (the paper's 4 m grid).
@@ -200,14 +219,16 @@ impl Collected {
                         .push((t.header.frame_id, t.child_frame_id, stamp, iso));
                 }
             }
-            SessionMsg::Odom(o) => match iso_from_pose(&o.pose) {
-                Some(p) if self.base_frame_id.is_none() => {
-                    self.base_frame_id = Some(o.child_frame_id.clone());
+            SessionMsg::Odom(o) => match (pose_problem(&o.pose), iso_from_pose(&o.pose)) {
+                (None, Some(p)) => {
+                    if self.base_frame_id.is_none() {
+                        self.base_frame_id = Some(o.child_frame_id.clone());
+                    }
                     self.odom.push((o.header.stamp_ns, p));
                 }
-                Some(p) => self.odom.push((o.header.stamp_ns, p)),
-                None => self.warnings.push(format!(
-                    "{at}: pose is not finite or has a zero quaternion; message skipped"
+                (problem, _) => self.warnings.push(format!(
+                    "{at}: {}; message skipped",
+                    problem.unwrap_or_default()
                 )),
             },
             SessionMsg::CmdVel(c) => {
@@ -230,7 +251,7 @@ impl Collected {
                 stamp_ns: f.stamp_ns,
             }),
             SessionMsg::GroundTruthPose(p) => {
-                if let Some(iso) = iso_from_pose(&p.pose) {
+                if let (None, Some(iso)) = (pose_problem(&p.pose), iso_from_pose(&p.pose)) {
                     self.gt_poses.push((p.header.stamp_ns, iso));
                 }
             }
