@@ -469,7 +469,11 @@ impl Logger {
     /// The final objects, static: what the replay answers, whichever frame is shown.
     fn final_objects(&self, objects: &[Object]) -> Result<(), VizError> {
         let rgb = |o: &Object| {
-            let c = if o.weaker_instance.is_some() { WEAKER_RGB } else { FINAL_RGB };
+            let c = if o.weaker_instance.is_some() {
+                WEAKER_RGB
+            } else {
+                FINAL_RGB
+            };
             rerun::Color::from_rgb(c[0], c[1], c[2])
         };
         let boxes = rerun::Boxes3D::from_mins_and_sizes(
@@ -478,10 +482,15 @@ impl Logger {
                 .iter()
                 .map(|b| [0, 1, 2].map(|a| (b.bbox_max_m[a] - b.bbox_min_m[a]) as f32)),
         )
-        .with_labels(objects.iter().enumerate().map(|(i, o)| match o.weaker_instance {
-            Some(f) => format!("object {i} (a weaker instance: peak {f:.2} of the grid's)"),
-            None => format!("object {i}"),
-        }))
+        .with_labels(
+            objects
+                .iter()
+                .enumerate()
+                .map(|(i, o)| match o.weaker_instance {
+                    Some(f) => format!("object {i} (a weaker instance: peak {f:.2} of the grid's)"),
+                    None => format!("object {i}"),
+                }),
+        )
         .with_colors(objects.iter().map(rgb));
         self.rec
             .log_static("world/objects/final", &boxes)

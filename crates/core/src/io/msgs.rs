@@ -891,7 +891,10 @@ mod tests {
         };
         let mut b = m.to_cdr();
         b[8..12].copy_from_slice(&999_999_999u32.to_le_bytes());
-        assert_eq!(PoseStamped::from_cdr(&b).unwrap().header.stamp_ns, 1_999_999_999);
+        assert_eq!(
+            PoseStamped::from_cdr(&b).unwrap().header.stamp_ns,
+            1_999_999_999
+        );
         b[8..12].copy_from_slice(&1_999_999_999u32.to_le_bytes());
         assert_eq!(
             PoseStamped::from_cdr(&b).unwrap_err().to_string(),

@@ -468,7 +468,10 @@ impl Scene {
         let path = &self.path;
         let half = [self.room.size_m[0] / 2.0, self.room.size_m[1] / 2.0];
         let inside = |x: f64, y: f64| x.abs() < half[0] && y.abs() < half[1];
-        let room = format!("the room spans x and y within +-{} and +-{} m", half[0], half[1]);
+        let room = format!(
+            "the room spans x and y within +-{} and +-{} m",
+            half[0], half[1]
+        );
         let [tx, ty] = path.target_m;
         if tx.abs() + path.tour_radius_m >= half[0] || ty.abs() + path.tour_radius_m >= half[1] {
             return Err(format!(

@@ -178,7 +178,10 @@ fn step(
     let (fused, ()) = rayon::join(
         || {
             let segments = fuse_one(fuser, data, &ctx.prepared, poses, index, localised)?;
-            Ok((segments, find_objects(&fuser.grid, &options.objects.per_frame())))
+            Ok((
+                segments,
+                find_objects(&fuser.grid, &options.objects.per_frame()),
+            ))
         },
         || add_floor(map, check, &floor, &odom_from_base, &p.odometry),
     );

@@ -32,7 +32,10 @@ fn pose_problem(pose: &crate::io::msgs::Pose) -> Option<String> {
     if iso_from_pose(pose).is_none() {
         return Some("pose is not finite or has a zero quaternion".into());
     }
-    let axis = pose.position.iter().position(|v| v.abs() > MAX_POSITION_M)?;
+    let axis = pose
+        .position
+        .iter()
+        .position(|v| v.abs() > MAX_POSITION_M)?;
     Some(format!(
         "position {} = {:e} m is beyond {MAX_POSITION_M:e} m of the origin, further than any frame on Earth",
         ["x", "y", "z"][axis],

@@ -603,7 +603,9 @@ fn raw_to_rgb8(img: &Image) -> Result<Rgb8, FrameError> {
     }
     // The last row may lack its padding; more than `step * height` bytes is a wrong size or
     // encoding (rgb bytes under a mono8 header read as a third of the picture, silently).
-    let least = step.saturating_mul(h.saturating_sub(1)).saturating_add(w * channels);
+    let least = step
+        .saturating_mul(h.saturating_sub(1))
+        .saturating_add(w * channels);
     if img.data.len() < least || img.data.len() > step.saturating_mul(h) {
         return Err(FrameError::Length {
             width: w,

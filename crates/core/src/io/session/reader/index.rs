@@ -241,7 +241,11 @@ impl SessionReader {
                 st.scanned
             ));
         }
-        if let Some(w) = st.footer_warning.take().filter(|_| self.warnings.is_empty()) {
+        if let Some(w) = st
+            .footer_warning
+            .take()
+            .filter(|_| self.warnings.is_empty())
+        {
             self.warnings.push(w);
         }
         if self.channels.is_empty() && self.stats.is_empty() && self.warnings.is_empty() {
