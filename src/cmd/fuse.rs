@@ -113,10 +113,14 @@ pub struct FuseArgs {
     /// Evidence every cell of an object must have, as a fraction of the grid's highest.
     #[arg(long, default_value_t = ObjectParams::default().grow_fraction, value_parser = parse_fraction)]
     pub grow_fraction: f32,
-    /// Report only objects as strong as the grid's peak rule makes them: do not also search
-    /// the final grid for weaker instances apart from them (a twin on the floor that fewer
-    /// frames saw; docs/fuser.md, Objects).
-    #[arg(long)]
+    /// Also search the final grid for instances weaker than the grid's peak rule finds, apart
+    /// from the objects found (a twin on the floor that fewer frames saw; docs/fuser.md,
+    /// Objects). The default for a ground robot's session (with /cmd_vel); a capture without
+    /// commands is searched only when asked with this flag.
+    #[arg(long, overrides_with = "no_weaker_instances")]
+    pub weaker_instances: bool,
+    /// Report only the objects of the grid's peak rule: no search for weaker instances.
+    #[arg(long, overrides_with = "weaker_instances")]
     pub no_weaker_instances: bool,
     /// Range limit of a frame's update: it stops at the depth where a tile's footprint
     /// exceeds this many cells (`off`: no limit). Beyond it one tile's value covers a wall of
@@ -235,6 +239,7 @@ impl FuseArgs {
                 voxel: self.voxel.is_none(),
                 refinement: !self.refine_poses && !self.no_refine_poses,
                 locate: self.locate.is_none(),
+                weaker_instances: !self.weaker_instances && !self.no_weaker_instances,
             },
             max_footprint_voxels: self.max_footprint.0,
             grid_storage: self.grid_storage,

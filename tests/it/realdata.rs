@@ -108,12 +108,14 @@ fn the_milk_carton_is_located_inside_its_rectangles_with_fitted_defaults() {
     );
     let rep = json(&report);
     assert_eq!(rep["options"]["refine_poses"], false);
+    // Motion model, refinement, locations, weaker instances, grid.
     assert_eq!(
         rep["fitted"].as_array().unwrap().len(),
-        4,
+        5,
         "{}",
         rep["fitted"]
     );
+    assert_eq!(rep["options"]["objects"]["weaker_instances"], false);
     // No floor under the carton: its location is triangulated from its detections' boxes, in
     // nearly every one of the 43 frames (it is wholly in view in each; measured 39 with the
     // capture's training defaults (a forest of 16 trees), 42 with one tree, 43 with rgb332

@@ -950,8 +950,13 @@ fn a_simulated_tour_imported_as_a_capture_finds_its_chair() {
             text.contains("fitted to the session: no motion model"),
             "{case}: {text}"
         );
+        assert!(
+            text.contains("no search for weaker instances: on captures it found false positives"),
+            "{case}: {text}"
+        );
         let rep = crate::common::json(&report);
         assert_eq!(rep["options"]["locate"], "detections");
+        assert_eq!(rep["options"]["objects"]["weaker_instances"], false);
         let objects = rep["objects"].as_array().unwrap();
         assert_eq!(objects.len(), 1, "{case}: {text}");
         assert!(
@@ -980,6 +985,15 @@ fn a_simulated_tour_imported_as_a_capture_finds_its_chair() {
             "{case}: {ev}"
         );
         if case == "shipped" {
+            // Asked for, the search runs on a capture too, and is no longer a fitted choice.
+            let asked = dir.path().join("asked-r.json");
+            let mut with = args.to_vec();
+            with[5] = p(&asked);
+            with.push("--weaker-instances");
+            let text = ok(&objloc(&with, &[]));
+            assert!(!text.contains("no search for weaker instances"), "{text}");
+            let rep = crate::common::json(&asked);
+            assert_eq!(rep["options"]["objects"]["weaker_instances"], true);
             eval_finds_the_model_beside_the_report(dir.path(), &tour_capture, &report, &model);
             let wrong = objloc(&["eval", p(&train_capture), "--report", p(&report)], &[]);
             let line = one_line_error(&wrong);

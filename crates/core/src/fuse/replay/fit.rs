@@ -2,8 +2,9 @@
 //! why. A ground robot's session (it has /cmd_vel) keeps every default as it is. A session
 //! without commands (a hand-held, arm or structure-from-motion capture) has no motion to
 //! predict: no motion model, no pose refinement (unless asked), no floor term (the camera is
-//! not a robot's fixed mount above a floor), and, unless bounds are given, a grid around
-//! where the cameras look, in the session's own units.
+//! not a robot's fixed mount above a floor), no search for weaker instances (unless asked),
+//! and, unless bounds are given, a grid around where the cameras look, in the session's own
+//! units.
 //!
 //! Invariants: a pure function of the options and pass 1's data (deterministic); a choice the
 //! user made (`fit` false) is never overridden; every override is stated as one line.
@@ -29,6 +30,11 @@ pub struct SessionFit {
     /// read as not chosen.
     #[serde(default)]
     pub locate: bool,
+    /// Whether to search the final grid for weaker instances
+    /// ([`crate::fuse::objects::ObjectParams::weaker_instances`]); reports written before it
+    /// existed read as not chosen.
+    #[serde(default)]
+    pub weaker_instances: bool,
 }
 
 impl SessionFit {
@@ -38,6 +44,7 @@ impl SessionFit {
         voxel: true,
         refinement: true,
         locate: true,
+        weaker_instances: true,
     };
 }
 
@@ -86,6 +93,15 @@ pub fn fit_to_session(options: &FuseOptions, data: &SessionData) -> Fitted {
             "object locations triangulated from their detections' boxes: without /cmd_vel no \
              floor closes the grid below the object, and cells hidden under it in every view \
              keep its evidence (--locate extent for the centre of the extent)"
+                .to_owned(),
+        );
+    }
+    if options.fit.weaker_instances && out.objects.weaker_instances {
+        out.objects.weaker_instances = false;
+        choices.push(
+            "no search for weaker instances: on captures it found false positives, not twins \
+             (robot sessions taken as captures, perturbed: 4 spurious objects in 12 tours; \
+             docs/fuser.md, Objects; ask with --weaker-instances)"
                 .to_owned(),
         );
     }
