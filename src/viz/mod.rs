@@ -10,6 +10,7 @@
 //! ignores them. A saved file is written as `NAME.partial` and renamed when complete.
 
 pub mod fuse;
+mod images;
 pub mod train;
 
 use std::path::{Path, PathBuf};

@@ -10,7 +10,7 @@
 
 use rerun::RecordingStream;
 
-use super::fuse::{depth_image, encoded_jpeg, log_frame_and_probs};
+use super::images::{depth_image, encoded_jpeg, log_frame_and_probs};
 use super::{TIMELINE_FRAME, TIMELINE_LOG_TIME, VizError, log_err};
 use objloc_core::learn::dataset::LoadedSession;
 use objloc_core::learn::model::Model;
