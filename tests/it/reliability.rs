@@ -534,6 +534,36 @@ fn truncated_at_20_seeded_offsets() {
     assert!(partial >= 15, "{partial}");
 }
 
+/// A model trained on a truncated session says so in its metadata, beside the session's
+/// hash (it was said on stderr only, and the model looked like one of a whole session).
+#[test]
+fn a_model_records_what_reading_its_sessions_said() {
+    let dir = tempfile::tempdir().unwrap();
+    let bytes = std::fs::read(repo_dir().join("recordings/chair-train.mcap")).unwrap();
+    let cut = dir.path().join("cut-train.mcap");
+    std::fs::write(&cut, &bytes[..bytes.len() * 9 / 10]).unwrap();
+    let model = dir.path().join("m.json");
+    crate::common::ok(&crate::common::objloc(
+        &["train", p(&cut), "-o", p(&model), "--no-rerun"],
+        &[],
+    ));
+    let m = crate::common::json(&model);
+    let said = &m["metadata"]["sessions"][0]["warnings"];
+    assert!(
+        said.as_array().is_some_and(|w| w
+            .iter()
+            .any(|x| x.as_str().unwrap().contains("file is truncated"))),
+        "{said}"
+    );
+    // A whole session: no warnings field at all (models of intact sessions are as before).
+    let whole = train(dir.path());
+    let m = crate::common::json(&whole);
+    assert!(
+        m["metadata"]["sessions"][0].get("warnings").is_none(),
+        "{m}"
+    );
+}
+
 #[test]
 fn chunk_bit_flips_with_and_without_crc() {
     let dir = tempfile::tempdir().unwrap();

@@ -118,6 +118,10 @@ pub struct SessionHash {
     pub path: String,
     /// Hex SHA-256 of the session file's bytes.
     pub sha256: String,
+    /// What reading it said (a truncated file, damage, frames skipped): the model was trained
+    /// on what could be read, and says so (absent when nothing was said).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub warnings: Vec<String>,
 }
 
 /// Examples of one third and how many of them are positive.

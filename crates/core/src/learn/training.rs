@@ -181,6 +181,7 @@ pub fn fit_model(
             .map(|s| SessionHash {
                 path: s.path.display().to_string(),
                 sha256: s.sha256.clone(),
+                warnings: s.warnings.clone(),
             })
             .collect(),
         object: cfg.object.clone(),
