@@ -141,6 +141,26 @@ impl SessionReader {
         }
     }
 
+    /// What the summary's chunk index says of the chunk at `offset_bytes` (where damage was
+    /// met): the log times of its messages, which the scan could not read. Empty when the
+    /// file's summary does not read or does not index such a chunk.
+    fn damaged_chunk_times(&self, offset_bytes: u64) -> String {
+        let Ok(Some(summary)) = super::summary::read_summary_section(&self.path) else {
+            return String::new();
+        };
+        summary
+            .chunks
+            .iter()
+            .find(|&&(start, _, _)| start == offset_bytes)
+            .map_or_else(String::new, |&(_, first, last)| {
+                format!(
+                    "; the summary's chunk index puts messages logged from {} to {} in the chunk there",
+                    super::super::fmt_ns(first),
+                    super::super::fmt_ns(last)
+                )
+            })
+    }
+
     fn at_last(&self) -> At {
         // The last message scanned, indexed or not: under IndexScope::Roles the last indexed
         // one can lie far before the damage.
@@ -472,9 +492,10 @@ impl SessionReader {
             source if ran_out && st.ends_with_magic => Err(SessionError::Mcap {
                 at: self.at_last(),
                 what: format!(
-                    "damaged data after byte {} ({}; the file ends with the MCAP magic, so it is not truncated)",
+                    "damaged data after byte {} ({}; the file ends with the MCAP magic, so it is not truncated{})",
                     self.bytes_intact,
-                    self.after_what()
+                    self.after_what(),
+                    self.damaged_chunk_times(self.bytes_intact)
                 ),
                 cause: source,
             }),
@@ -504,9 +525,10 @@ impl SessionReader {
             source => Err(SessionError::Mcap {
                 at: self.at_last(),
                 what: format!(
-                    "damaged data after byte {} ({})",
+                    "damaged data after byte {} ({}{})",
                     self.bytes_intact,
-                    self.after_what()
+                    self.after_what(),
+                    self.damaged_chunk_times(self.bytes_intact)
                 ),
                 cause: source,
             }),

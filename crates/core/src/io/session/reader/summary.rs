@@ -37,6 +37,9 @@ pub struct SummarySection {
     pub time_range_ns: Option<(u64, u64)>,
     /// Chunks in the file (Statistics).
     pub chunk_count: u32,
+    /// Each chunk's place and the log times of its messages, from the chunk indexes, in the
+    /// summary's order: (chunk start, bytes; first and last message log time, ns).
+    pub chunks: Vec<(u64, u64, u64)>,
 }
 
 /// Reads the summary section of the MCAP file at `path`; `Ok(None)` when the file has none
@@ -113,6 +116,17 @@ pub fn read_summary_section(path: &Path) -> Result<Option<SummarySection>, Sessi
         time_range_ns: (stats.message_count > 0)
             .then_some((stats.message_start_time, stats.message_end_time)),
         chunk_count: stats.chunk_count,
+        chunks: summary
+            .chunk_indexes
+            .iter()
+            .map(|c| {
+                (
+                    c.chunk_start_offset,
+                    c.message_start_time,
+                    c.message_end_time,
+                )
+            })
+            .collect(),
     }))
 }
 

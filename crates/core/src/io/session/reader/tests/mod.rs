@@ -380,6 +380,26 @@ fn a_corrupted_byte_in_a_chunk_is_an_error_naming_the_message_before_it() {
         line.to_lowercase().contains("crc") || line.contains("zstd"),
         "{line}"
     );
+    // A file whose summary reads: the damaged chunk's message times from its chunk index
+    // (damage in the first chunk named no time at all).
+    let mut b = bytes.clone();
+    let c0 = &chunks[0];
+    b[(c0.chunk_start_offset + c0.chunk_length - c0.compressed_size / 2) as usize] ^= 0x40;
+    let damaged = dir.path().join("flip.mcap");
+    std::fs::write(&damaged, &b).unwrap();
+    let e = SessionReader::open(&damaged, Topics::default()).unwrap_err();
+    let SessionError::Mcap { what, .. } = &e else {
+        panic!("{e}");
+    };
+    assert_eq!(
+        what,
+        &format!(
+            "damaged data after byte {} (before the first message; the summary's chunk index puts messages logged from {} to {} in the chunk there)",
+            c0.chunk_start_offset,
+            crate::io::session::fmt_ns(c0.message_start_time),
+            crate::io::session::fmt_ns(c0.message_end_time)
+        )
+    );
 }
 
 #[test]
