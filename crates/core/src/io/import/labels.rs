@@ -32,6 +32,9 @@ pub type Labels = BTreeMap<String, Vec<LabelRow>>;
 /// Parses a labels CSV: `image,x,y,width,height` with an optional sixth `object` column.
 pub fn parse_labels(path: &Path, text: &str) -> Result<Labels, ImportError> {
     let mut out: Labels = BTreeMap::new();
+    // Spreadsheets write UTF-8 CSVs with a byte-order mark: it hid the header (`\u{feff}image`
+    // is not `image`), which then failed as a row.
+    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
     for (i, raw) in text.lines().enumerate() {
         let line = i + 1;
         let content = raw.trim();
@@ -192,6 +195,16 @@ fn mask_box(mask: &Path, size: (u32, u32)) -> Result<Option<RegionOfInterest>, I
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A spreadsheet's CSV: a byte-order mark before the header, CRLF line ends.
+    #[test]
+    fn a_byte_order_mark_and_crlf_are_read_as_a_plain_csv() {
+        let p = Path::new("l.csv");
+        let plain = parse_labels(p, "image,x,y,width,height\na.png,1,2,30,40\n").unwrap();
+        let excel =
+            parse_labels(p, "\u{feff}image,x,y,width,height\r\na.png,1,2,30,40\r\n").unwrap();
+        assert_eq!(excel, plain);
+    }
 
     #[test]
     fn labels_parse_boxes_objects_and_background_rows() {
