@@ -16,7 +16,9 @@ use crate::viz::{
 use objloc_core::fuse::grid::{GridStorage, MAX_EXPORT_BYTES};
 use objloc_core::fuse::motion::BlurMode;
 use objloc_core::fuse::objects::ObjectParams;
-use objloc_core::fuse::replay::{FuseOptions, Locate, Outcome, PoseSource, SessionFit, replay};
+use objloc_core::fuse::replay::{
+    FuseOptions, Locate, Outcome, PoseSource, ReplayError, SessionFit, replay,
+};
 use objloc_core::io::session::{IndexScope, SessionReader};
 use objloc_core::learn::model::Model;
 use objloc_core::out::report::{Report, file_sha256};
@@ -293,27 +295,13 @@ pub fn fuse(
     );
     let stream = viz::open_stream(rerun, default_rrd, &id, Some(viz::fuse_blueprint()))?;
     let result = if stream.is_on() {
-        let mut observer = FuseViz::new(stream.rec.clone(), VizOptions::default());
-        let mut progress = ReplayProgress::new(args.quiet);
-        let result = replay(
-            &reader,
-            &model,
-            &options,
-            &mut [&mut observer, &mut progress],
-        );
-        // The observer's logging thread holds a handle on the recording: it must have logged
-        // everything before the stream is closed. A failed replay drops it (and the stream is
-        // abandoned below); a logging error fails the command.
-        match result {
-            Ok(o) => {
-                let logged = observer.final_objects(&o.objects);
-                if let Err(e) = logged.and_then(|()| observer.finish()) {
-                    stream.abandon();
-                    return Err(anyhow::Error::new(e).context("streaming the replay to Rerun"));
-                }
-                Ok(o)
+        match replay_streamed(&reader, &model, &options, &stream, args.quiet) {
+            Err(Streaming::Log(e)) => {
+                stream.abandon();
+                return Err(e);
             }
-            Err(e) => Err(e),
+            Err(Streaming::Replay(e)) => Err(e),
+            Ok(o) => Ok(o),
         }
     } else {
         replay(
@@ -363,6 +351,36 @@ pub fn fuse(
         report,
         update_range_m,
     })
+}
+
+/// Why a streamed replay failed: the replay itself, or the logging to Rerun after it.
+enum Streaming {
+    Replay(ReplayError),
+    Log(anyhow::Error),
+}
+
+/// The replay with the Rerun observer, then the final objects logged and the logging thread
+/// drained. The observer's thread holds a handle on the recording: it must have logged
+/// everything before the stream is closed. A failed replay drops it (and the caller abandons
+/// the stream); a logging error fails the command.
+fn replay_streamed(
+    reader: &SessionReader,
+    model: &Model,
+    options: &FuseOptions,
+    stream: &viz::VizStream,
+    quiet: bool,
+) -> Result<Outcome, Streaming> {
+    let mut observer = FuseViz::new(stream.rec.clone(), VizOptions::default());
+    let mut progress = ReplayProgress::new(quiet);
+    let outcome = replay(reader, model, options, &mut [&mut observer, &mut progress])
+        .map_err(Streaming::Replay)?;
+    observer
+        .final_objects(&outcome.objects)
+        .and_then(|()| observer.finish())
+        .map_err(|e| {
+            Streaming::Log(anyhow::Error::new(e).context("streaming the replay to Rerun"))
+        })?;
+    Ok(outcome)
 }
 
 /// The grid's flags, checked by the grid's own rules before any file is read, as usage

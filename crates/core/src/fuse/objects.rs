@@ -137,7 +137,7 @@ const NONE: u8 = 0;
 const GROW: u8 = 1;
 const DONE: u8 = 2;
 
-/// Finds the objects in `grid`, largest probability mass first.
+/// Finds the objects in `grid`, largest probability mass first (weaker instances after the others).
 pub fn find_objects(grid: &Grid, params: &ObjectParams) -> Vec<Object> {
     find_objects_with_cells(grid, params)
         .into_iter()
@@ -380,7 +380,8 @@ fn strongest(grid: &Grid, cells: &[usize]) -> Option<usize> {
 /// [`WEAK_SEED_FRACTION`] of the grid's peak with [`WEAK_AGREEMENT`], seen by
 /// [`WEAK_EXTRA_VIEWS`] more frames than `min_views`; each becomes the piece round that cell
 /// grown through `grow_fraction` of its own evidence (as the rule grows the strongest object
-/// from the grid's peak), kept when it has a fifth of the largest found object's cells.
+/// from the grid's peak), kept when it has more than a fifth of the largest found object's
+/// cells.
 ///
 /// Components are explored only from cells that could be such a peak, and one that reaches
 /// a found object stops there: labelling every cell at the low level took 8 of the 1 000-stop
@@ -431,9 +432,10 @@ fn weaker_instances(
             continue;
         }
         let piece = grown_within(grid, &comp, peak, params.grow_fraction * local);
-        // Twins have similar sizes: weaker evidence a fifth of the found object's size is
-        // clutter round it (a piece of floor under a chair), not another instance.
-        if piece.len() >= params.min_cells && piece.len() * FRAGMENT_RATIO >= largest {
+        // Twins have similar sizes: weaker evidence a fifth of the found object's size or
+        // less is clutter round it (a piece of floor under a chair), not another instance
+        // (and merging would take it for a fragment).
+        if piece.len() >= params.min_cells && piece.len() * FRAGMENT_RATIO > largest {
             let object = Object {
                 weaker_instance: Some(f64::from(local / max_e)),
                 ..summarize(grid, &piece)
@@ -589,8 +591,13 @@ fn merge_nested(grid: &Grid, mut objects: Vec<(Object, Vec<usize>)>) -> Vec<(Obj
             Some((k, km)) => {
                 km.extend_from_slice(&members);
                 km.sort_unstable();
+                // Weaker only when both were: a strong object merged in brings its peak.
+                let weaker = match (k.weaker_instance, o.weaker_instance) {
+                    (Some(a), Some(b)) => Some(a.max(b)),
+                    _ => None,
+                };
                 *k = Object {
-                    weaker_instance: k.weaker_instance,
+                    weaker_instance: weaker,
                     ..summarize(grid, km)
                 };
             }

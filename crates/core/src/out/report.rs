@@ -102,7 +102,7 @@ pub struct Report {
     pub fitted: Vec<String>,
     /// The final belief grid.
     pub grid: GridReport,
-    /// Located objects, largest probability mass first.
+    /// Located objects, largest probability mass first (weaker instances after the others).
     pub objects: Vec<Object>,
     /// Flat indices (C order) of the cells of all objects: the thresholded belief.
     pub object_cells: Vec<usize>,

@@ -342,7 +342,7 @@ pub struct Outcome {
     pub data: SessionData,
     /// The final belief.
     pub grid: Grid,
-    /// Objects found in the final belief, largest probability mass first.
+    /// Objects found in the final belief, largest probability mass first (weaker instances after the others).
     pub objects: Vec<Object>,
     /// Flat indices of the final objects' cells, ascending.
     pub object_cells: Vec<usize>,

@@ -26,21 +26,18 @@ pub const MAX_COMMAND_SPEED: f64 = 100.0;
 /// default bounds a grid of 2^64 cells, refused with saturated numbers and no topic.
 pub const MAX_POSITION_M: f64 = 1e8;
 
-/// Why a pose cannot be used, or None: not finite, a zero quaternion, or beyond
-/// [`MAX_POSITION_M`].
-fn pose_problem(pose: &crate::io::msgs::Pose) -> Option<String> {
-    if iso_from_pose(pose).is_none() {
-        return Some("pose is not finite or has a zero quaternion".into());
+/// The pose as a transform, or why it cannot be used: not finite, a zero quaternion, or
+/// beyond [`MAX_POSITION_M`].
+fn usable_pose(pose: &crate::io::msgs::Pose) -> Result<Iso3, String> {
+    let iso = iso_from_pose(pose).ok_or("pose is not finite or has a zero quaternion")?;
+    match pose.position.iter().position(|v| v.abs() > MAX_POSITION_M) {
+        None => Ok(iso),
+        Some(axis) => Err(format!(
+            "position {} = {:e} m is beyond {MAX_POSITION_M:e} m of the origin, further than any frame on Earth",
+            ["x", "y", "z"][axis],
+            pose.position[axis]
+        )),
     }
-    let axis = pose
-        .position
-        .iter()
-        .position(|v| v.abs() > MAX_POSITION_M)?;
-    Some(format!(
-        "position {} = {:e} m is beyond {MAX_POSITION_M:e} m of the origin, further than any frame on Earth",
-        ["x", "y", "z"][axis],
-        pose.position[axis]
-    ))
 }
 
 /// Margin around the camera positions for the default bounds, metres.
@@ -222,17 +219,14 @@ impl Collected {
                         .push((t.header.frame_id, t.child_frame_id, stamp, iso));
                 }
             }
-            SessionMsg::Odom(o) => match (pose_problem(&o.pose), iso_from_pose(&o.pose)) {
-                (None, Some(p)) => {
+            SessionMsg::Odom(o) => match usable_pose(&o.pose) {
+                Ok(p) => {
                     if self.base_frame_id.is_none() {
                         self.base_frame_id = Some(o.child_frame_id.clone());
                     }
                     self.odom.push((o.header.stamp_ns, p));
                 }
-                (problem, _) => self.warnings.push(format!(
-                    "{at}: {}; message skipped",
-                    problem.unwrap_or_default()
-                )),
+                Err(why) => self.warnings.push(format!("{at}: {why}; message skipped")),
             },
             SessionMsg::CmdVel(c) => {
                 let (v, w) = (c.twist.linear[0], c.twist.angular[2]);
@@ -253,11 +247,10 @@ impl Collected {
                 log_time_ns: m.log_time_ns,
                 stamp_ns: f.stamp_ns,
             }),
-            SessionMsg::GroundTruthPose(p) => {
-                if let (None, Some(iso)) = (pose_problem(&p.pose), iso_from_pose(&p.pose)) {
-                    self.gt_poses.push((p.header.stamp_ns, iso));
-                }
-            }
+            SessionMsg::GroundTruthPose(p) => match usable_pose(&p.pose) {
+                Ok(iso) => self.gt_poses.push((p.header.stamp_ns, iso)),
+                Err(why) => self.warnings.push(format!("{at}: {why}; message skipped")),
+            },
             SessionMsg::GroundTruthObjects(g) => self.ground_truth = Some(g),
             SessionMsg::Label(_) => {}
         }

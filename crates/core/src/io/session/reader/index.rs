@@ -251,21 +251,18 @@ impl SessionReader {
         }
         // A file written to the end whose summary counts other messages than it holds has
         // lost (or gained) records since: a chunk cut out leaves no other trace in a scan.
-        if let Some(n) = st
+        let counted = st
             .stated
-            .filter(|&n| n != st.scanned && self.warnings.is_empty())
-        {
+            .filter(|&n| n != st.scanned && self.warnings.is_empty());
+        if let Some(n) = counted {
             self.warnings.push(format!(
                 "{}: its summary counts {n} messages, the file holds {}: records are missing or were added after the summary was written",
                 self.path.display(),
                 st.scanned
             ));
         }
-        if let Some(w) = st
-            .footer_warning
-            .take()
-            .filter(|_| self.warnings.is_empty())
-        {
+        // Records cut out move the summary too: the count says what happened.
+        if let Some(w) = st.footer_warning.take().filter(|_| counted.is_none()) {
             self.warnings.push(w);
         }
         if self.channels.is_empty() && self.stats.is_empty() && self.warnings.is_empty() {
