@@ -25,6 +25,14 @@ fn a_cut_between_records_says_what_is_missing() {
     );
 }
 
+/// Where the footer record starts in a closed file, and the summary start it holds (the
+/// footer: opcode, length, summary_start, summary_offset_start, crc; then the magic).
+fn footer_and_summary_start(bytes: &[u8]) -> (usize, u64) {
+    let footer = bytes.len() - 8 - (1 + 8 + 8 + 8 + 4);
+    let start = u64::from_le_bytes(bytes[footer + 9..footer + 17].try_into().unwrap());
+    (footer, start)
+}
+
 /// A summary zeroed in a file that still ends with its footer and magic: every message is
 /// read, with a warning (the whole file was refused, its data intact).
 #[test]
@@ -32,9 +40,7 @@ fn a_damaged_summary_keeps_every_message() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("whole.mcap");
     let mut bytes = write(&path, small_chunks(), &increasing(300));
-    // Footer: opcode, length, summary_start, summary_offset_start, crc; then the magic.
-    let footer = bytes.len() - 8 - (1 + 8 + 8 + 8 + 4);
-    let summary_start = u64::from_le_bytes(bytes[footer + 9..footer + 17].try_into().unwrap());
+    let (footer, summary_start) = footer_and_summary_start(&bytes);
     assert!(summary_start > 0 && (summary_start as usize) < footer);
     bytes[summary_start as usize..footer].fill(0);
     let zeroed = dir.path().join("zeroed.mcap");
@@ -68,8 +74,7 @@ fn a_footer_pointing_elsewhere_is_said() {
             .warnings
             .is_empty()
     );
-    let footer = bytes.len() - 8 - (1 + 8 + 8 + 8 + 4);
-    let summary_start = u64::from_le_bytes(bytes[footer + 9..footer + 17].try_into().unwrap());
+    let (footer, summary_start) = footer_and_summary_start(&bytes);
     bytes[footer + 9..footer + 17].copy_from_slice(&1_000_000_000_000u64.to_le_bytes());
     let bad = dir.path().join("bad-footer.mcap");
     std::fs::write(&bad, &bytes).unwrap();
