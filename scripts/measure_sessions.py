@@ -14,6 +14,9 @@ Sets (each skipped with a message where its data is absent):
   wide     the held-out-style scenes' tour seeds 1-8 at the default noise (48 low-noise tours)
   small    two 11 cm mugs, one on a table, one on the floor (scripts/heldout/two-mugs.json):
            seeds 21/22 at the default noise and at 5 %/3 %, and seeds 1-8 at the default noise
+  approach tours shaped as the foreign renderer's: a first frame about 3 m out, then 9 stops on a
+           225-degree arc of 1.5-1.6 m (scripts/heldout/{chair,two-mugs}-approach.json), seeds
+           1-6 at 1 %/0.6 % and at 5 %/3 %
 TRAIN_FLAGS in the environment are passed to `objloc train`.
 
 Usage: scripts/measure_sessions.py [--sets shipped,heldout,foreign] [--modes default,objects,odom]
@@ -110,6 +113,22 @@ def small_sessions():
         sim_record(sargs + ["--kind", "tour", "--seed", str(seed)] + extra, path)
         yield dict(set="small", name="two-mugs-%s-%d" % ("5%/3%" if extra else "default", seed),
                    session=path, model=model, bounds=ROOM, low_noise=(noise == "default"), truth=None)
+
+
+def approach_sessions():
+    """The foreign renderer's tour shape in our simulator: a long approach, then an arc."""
+    os.makedirs(HELDOUT, exist_ok=True)
+    for scene in ["chair-approach", "two-mugs-approach"]:
+        sargs = ["--scene-file", os.path.join(ROOT, "scripts", "heldout", scene + ".json")]
+        tr = sim_record(sargs + ["--kind", "train", "--seed", "11"], os.path.join(HELDOUT, scene + "-train.mcap"))
+        model = train(tr, os.path.join(OUT, "heldout-%s.json" % scene))
+        for noise in ["0.01,0.006", "0.05,0.03"]:
+            for seed in range(1, 7):
+                path = os.path.join(HELDOUT, "%s-%s-%d.mcap" % (scene, noise, seed))
+                sim_record(sargs + ["--kind", "tour", "--seed", str(seed), "--stops", "9",
+                                    "--speed-noise", noise], path)
+                yield dict(set="approach", name="%s-%s-%d" % (scene, "1%/0.6%" if noise == "0.01,0.006" else "5%/3%", seed),
+                           session=path, model=model, bounds=ROOM, low_noise=(noise == "0.01,0.006"), truth=None)
 
 
 def wide_sessions():
@@ -212,7 +231,8 @@ def main():
         subprocess.run(["cargo", "build", "--release"], cwd=ROOT, check=True)
     modes = a.modes.split(",")
     gens = {"shipped": shipped_sessions, "heldout": heldout_sessions, "foreign": foreign_sessions,
-            "repeating": repeating_sessions, "wide": wide_sessions, "small": small_sessions}
+            "repeating": repeating_sessions, "wide": wide_sessions, "small": small_sessions,
+            "approach": approach_sessions}
     results = []
     for name in a.sets.split(","):
         if name == "foreign" and not os.path.isdir(FOREIGN):

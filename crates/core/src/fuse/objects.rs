@@ -353,11 +353,6 @@ pub const WEAK_SEED_FRACTION: f32 = 0.3;
 /// peak: every view that saw it agreed, as they do on the object found.
 pub const WEAK_AGREEMENT: f32 = 0.5;
 
-/// A weaker instance's strongest cell must have been seen by this many frames more than
-/// `min_views`: where exactly the minimum of pyramids cross, all of them positive, the
-/// agreement is perfect by construction.
-pub const WEAK_EXTRA_VIEWS: u16 = 1;
-
 /// Evidence per view of cell `idx` (its log-odds above the prior over the frames that saw it).
 fn per_view(grid: &Grid, idx: usize) -> f32 {
     grid.evidence_at(idx) / f32::from(grid.views_at(idx).max(1))
@@ -377,11 +372,10 @@ fn strongest(grid: &Grid, cells: &[usize]) -> Option<usize> {
 /// Instances weaker than the grid's peak (a mug on the floor that a table hides from part
 /// of the tour, beside its twin on the table): components at [`WEAK_CONNECT_FRACTION`] of
 /// the peak that hold no cell of the objects `found`, whose strongest cell reaches
-/// [`WEAK_SEED_FRACTION`] of the grid's peak with [`WEAK_AGREEMENT`], seen by
-/// [`WEAK_EXTRA_VIEWS`] more frames than `min_views`; each becomes the piece round that cell
-/// grown through `grow_fraction` of its own evidence (as the rule grows the strongest object
-/// from the grid's peak), kept when it has more than a fifth of the largest found object's
-/// cells.
+/// [`WEAK_SEED_FRACTION`] of the grid's peak with [`WEAK_AGREEMENT`]; each becomes the piece
+/// round that cell grown through `grow_fraction` of its own evidence (as the rule grows the
+/// strongest object from the grid's peak), kept when it has more than a fifth of the largest
+/// found object's cells.
 ///
 /// Components are explored only from cells that could be such a peak, and one that reaches
 /// a found object stops there: labelling every cell at the low level took 8 of the 1 000-stop
@@ -404,9 +398,8 @@ fn weaker_instances(
     let (low_e, seed_e) = (WEAK_CONNECT_FRACTION * max_e, WEAK_SEED_FRACTION * max_e);
     // A component that passes holds its strongest cell, which passes the tests on its own:
     // only such cells are worth starting from (the fringe of a found object holds thousands
-    // of cells above the seed level, and each would be explored every frame).
-    let min_peak_views = params.min_views.saturating_add(WEAK_EXTRA_VIEWS);
-    let starts = cells_at_least(grid, peaks, min_peak_views, seed_e)
+    // of cells above the seed level).
+    let starts = cells_at_least(grid, peaks, params.min_views, seed_e)
         .into_iter()
         .filter(|&i| per_view(grid, i) >= agreement && taken.binary_search(&i).is_err());
     let mut visited = std::collections::BTreeMap::new();
@@ -424,11 +417,7 @@ fn weaker_instances(
             continue;
         };
         let local = grid.evidence_at(peak);
-        if comp.len() < params.min_cells
-            || local < seed_e
-            || per_view(grid, peak) < agreement
-            || grid.views_at(peak) < min_peak_views
-        {
+        if comp.len() < params.min_cells || local < seed_e || per_view(grid, peak) < agreement {
             continue;
         }
         let piece = grown_within(grid, &comp, peak, params.grow_fraction * local);
@@ -979,9 +968,10 @@ mod tests {
         assert!(find_objects(&grid_with(&twin(20.0, 5)), &params.per_frame()).len() == 1);
         // Its peak at 0.29 of the grid's (14.5 / 50): not.
         assert_eq!(find_objects(&grid_with(&twin(14.5, 5)), &params).len(), 1);
-        // Seen by the minimum of 4 frames only (where that many pyramids cross, each positive,
-        // agreement is perfect by construction): not.
-        assert_eq!(find_objects(&grid_with(&twin(20.0, 4)), &params).len(), 1);
+        // Seen by the minimum of 4 frames (an arc that passes behind the table): still a twin.
+        assert_eq!(find_objects(&grid_with(&twin(20.0, 4)), &params).len(), 2);
+        // By 3, under `--min-views`: not.
+        assert_eq!(find_objects(&grid_with(&twin(20.0, 3)), &params).len(), 1);
         // Each view less than half as sure as at the peak (20 over 9 views: 2.2 < 3.1): not.
         assert_eq!(find_objects(&grid_with(&twin(20.0, 9)), &params).len(), 1);
         // Joined to the strong instance through cells at 0.16 of the peak: part of it (a

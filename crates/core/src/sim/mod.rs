@@ -191,15 +191,24 @@ pub fn plan_stops(scene: &Scene, opts: &SimOptions) -> Result<Vec<Stop>, SimErro
                     opts.stops
                 )));
             }
+            // Stops 360 / N degrees apart round the circle (the expression as it always was:
+            // recordings stay byte for byte), or spanning the arc end to end.
             let n = opts.stops as f64;
-            Ok((0..opts.stops)
-                .map(|i| Stop {
-                    pose: facing(
-                        p.tour_start_deg.to_radians() + 2.0 * PI * i as f64 / n,
-                        p.tour_radius_m,
-                    ),
+            let start = p.tour_start_deg.to_radians();
+            let bearing = |i: usize| match p.tour_arc_deg {
+                Some(arc) => start + arc.to_radians() * i as f64 / (n - 1.0),
+                None => start + 2.0 * PI * i as f64 / n,
+            };
+            let approach = p.tour_start_distance_m.map(|d| Stop {
+                pose: facing(start, d),
+                background: false,
+            });
+            Ok(approach
+                .into_iter()
+                .chain((0..opts.stops).map(|i| Stop {
+                    pose: facing(bearing(i), p.tour_radius_m),
                     background: false,
-                })
+                }))
                 .collect())
         }
         Kind::Train => {
@@ -763,6 +772,41 @@ mod tests {
         let train = plan_stops(&s, &SimOptions::new(Kind::Train, 1)).unwrap();
         assert_eq!(train.iter().filter(|s| !s.background).count(), 3);
         assert_eq!(train.iter().filter(|s| s.background).count(), 18);
+    }
+
+    /// The foreign renderer's tour shape: a first frame 3 m out, then stops spanning a 180
+    /// degree arc end to end (8 stops: 180 / 7 degrees apart), all facing the target.
+    #[test]
+    fn an_approach_and_an_arc() {
+        let mut s = builtin_scene("chair").unwrap();
+        s.path.tour_start_distance_m = Some(3.0);
+        s.path.tour_arc_deg = Some(180.0);
+        s.validate().unwrap();
+        let stops = plan_stops(&s, &SimOptions::new(Kind::Tour, 1)).unwrap();
+        assert_eq!(stops.len(), 9);
+        let [tx, ty] = s.path.target_m;
+        let polar = |st: &Stop| {
+            let (dx, dy) = (st.pose.x_m - tx, st.pose.y_m - ty);
+            assert!(wrap_angle(dy.atan2(dx) + PI - st.pose.yaw_rad).abs() < 1e-9);
+            (dx.hypot(dy), dy.atan2(dx))
+        };
+        let start = s.path.tour_start_deg.to_radians();
+        let (d0, b0) = polar(&stops[0]);
+        assert!((d0 - 3.0).abs() < 1e-9 && wrap_angle(b0 - start).abs() < 1e-9);
+        for (i, st) in stops[1..].iter().enumerate() {
+            let (d, b) = polar(st);
+            assert!((d - s.path.tour_radius_m).abs() < 1e-9);
+            let want = start + PI * i as f64 / 7.0;
+            assert!(
+                wrap_angle(b - want).abs() < 1e-9,
+                "stop {i}: {b} against {want}"
+            );
+        }
+        // A start inside the circle, or outside the room, is refused.
+        s.path.tour_start_distance_m = Some(1.0);
+        assert!(s.validate().unwrap_err().contains("tour_start_distance_m"));
+        s.path.tour_start_distance_m = Some(30.0);
+        assert!(s.validate().unwrap_err().contains("outside the room"));
     }
 
     #[test]

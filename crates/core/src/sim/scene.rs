@@ -237,6 +237,15 @@ pub struct PathSpec {
     pub tour_radius_m: f64,
     /// Bearing of the first tour stop as seen from the target.
     pub tour_start_deg: f64,
+    /// The tour's stops span this arc from `tour_start_deg` (first and last stop at its ends)
+    /// instead of the whole circle (absent: the circle, its stops 360 / N degrees apart).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tour_arc_deg: Option<f64>,
+    /// The tour's first frame is taken this far from the target, at `tour_start_deg`, before
+    /// the robot drives in to the circle (as the foreign renderer's tours do; absent: the tour
+    /// starts on the circle).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tour_start_distance_m: Option<f64>,
     /// Train viewpoints: the robot stands at this bearing and distance, facing the target.
     pub train_views: Vec<View>,
     /// Background stops of train sessions (target object removed).
@@ -443,6 +452,18 @@ impl Scene {
                     .into(),
             );
         }
+        if !path
+            .tour_arc_deg
+            .is_none_or(|a| a.is_finite() && a > 0.0 && a <= 360.0)
+            || !path
+                .tour_start_distance_m
+                .is_none_or(|d| d.is_finite() && d > path.tour_radius_m)
+        {
+            return Err(format!(
+                "path.tour_arc_deg {:?} must lie in (0, 360] and path.tour_start_distance_m {:?} beyond tour_radius_m {}",
+                path.tour_arc_deg, path.tour_start_distance_m, path.tour_radius_m
+            ));
+        }
         if path.train_views.is_empty()
             || !path
                 .train_views
@@ -478,6 +499,15 @@ impl Scene {
                 "path.tour_radius_m {} m round target_m {:?} leaves the room ({room})",
                 path.tour_radius_m, path.target_m
             ));
+        }
+        if let Some(d) = path.tour_start_distance_m {
+            let b = path.tour_start_deg.to_radians();
+            let (x, y) = (tx + d * b.cos(), ty + d * b.sin());
+            if !inside(x, y) {
+                return Err(format!(
+                    "path.tour_start_distance_m {d} m puts the tour's start at ({x:.2}, {y:.2}) m, outside the room ({room})"
+                ));
+            }
         }
         for (i, v) in path.train_views.iter().enumerate() {
             let b = v.bearing_deg.to_radians();
