@@ -352,6 +352,13 @@ pub const WEAK_SEED_FRACTION: f32 = 0.3;
 /// And its evidence per view there, this fraction of the per-view evidence at the grid's
 /// peak: every view that saw it agreed, as they do on the object found.
 pub const WEAK_AGREEMENT: f32 = 0.5;
+/// And its peak's probability at least this: the belief holds it more likely there than not.
+/// The fractions above are relative to the grid's peak, which a blurred replay lowers: at
+/// /odom (drifting poses, a smeared peak) a false detection seen from a few frames reached
+/// 0.31-0.47 of it at p 0.27-0.47 (five two-bottles tours), while every weaker instance found
+/// with refined poses peaked at p 0.98-1.0, except a spurious one at p 0.41 (measured in
+/// docs/fuser.md, "Weaker instances").
+pub const WEAK_MIN_PROBABILITY: f64 = 0.5;
 
 /// Evidence per view of cell `idx` (its log-odds above the prior over the frames that saw it).
 fn per_view(grid: &Grid, idx: usize) -> f32 {
@@ -372,7 +379,8 @@ fn strongest(grid: &Grid, cells: &[usize]) -> Option<usize> {
 /// Instances weaker than the grid's peak (a mug on the floor that a table hides from part
 /// of the tour, beside its twin on the table): components at [`WEAK_CONNECT_FRACTION`] of
 /// the peak that hold no cell of the objects `found`, whose strongest cell reaches
-/// [`WEAK_SEED_FRACTION`] of the grid's peak with [`WEAK_AGREEMENT`]; each becomes the piece
+/// [`WEAK_SEED_FRACTION`] of the grid's peak with [`WEAK_AGREEMENT`] and
+/// [`WEAK_MIN_PROBABILITY`]; each becomes the piece
 /// round that cell grown through `grow_fraction` of its own evidence (as the rule grows the
 /// strongest object from the grid's peak), kept when it has more than a fifth of the largest
 /// found object's cells.
@@ -395,7 +403,12 @@ fn weaker_instances(
     };
     let agreement = WEAK_AGREEMENT * per_view(grid, top);
     let largest = found.iter().map(|(o, _)| o.cells).max().unwrap_or(0);
-    let (low_e, seed_e) = (WEAK_CONNECT_FRACTION * max_e, WEAK_SEED_FRACTION * max_e);
+    let likely_e =
+        (crate::fuse::grid::logit(WEAK_MIN_PROBABILITY) - f64::from(grid.prior_log_odds())) as f32;
+    let (low_e, seed_e) = (
+        WEAK_CONNECT_FRACTION * max_e,
+        (WEAK_SEED_FRACTION * max_e).max(likely_e),
+    );
     // A component that passes holds its strongest cell, which passes the tests on its own:
     // only such cells are worth starting from (the fringe of a found object holds thousands
     // of cells above the seed level).
@@ -989,5 +1002,31 @@ mod tests {
             ([12, 2, 2], [13, 3, 7], 20.0, 5),
         ];
         assert_eq!(find_objects(&grid_with(&small), &params).len(), 1);
+    }
+
+    /// A twin whose peak is more likely empty than occupied is not an instance, however it
+    /// compares with the grid's peak. The prior is 0.01 (log-odds -4.595): evidence of
+    /// 4.595 is p 0.5.
+    #[test]
+    fn a_weaker_twin_must_be_more_likely_there_than_not() {
+        let twin = |e: f32| -> Vec<Blob> {
+            vec![
+                // A smeared strong instance: 12 over 8 views (p 0.9994), 27 cells.
+                ([2, 2, 2], [5, 5, 5], 12.0, 8),
+                ([12, 2, 2], [14, 4, 4], e, 4),
+                ([14, 2, 2], [15, 4, 4], 0.72 * e, 4),
+            ]
+        };
+        let params = ObjectParams::default();
+        // 5.0: 0.42 of the peak, 1.25 per view against 1.5, p 0.60: an instance.
+        let found = find_objects(&grid_with(&twin(5.0)), &params);
+        assert_eq!(found.len(), 2);
+        assert!(
+            (found[1].peak_probability - 0.5999).abs() < 1e-3,
+            "{}",
+            found[1].peak_probability
+        );
+        // 4.0: 0.33 of the peak, 1.0 per view, but p 0.355: not.
+        assert_eq!(find_objects(&grid_with(&twin(4.0)), &params).len(), 1);
     }
 }
