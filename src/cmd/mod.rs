@@ -10,6 +10,7 @@ mod predict;
 mod progress;
 mod record;
 mod train;
+mod train_views;
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};

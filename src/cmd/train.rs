@@ -1,5 +1,7 @@
 //! `objloc train SESSION... -o MODEL.json`: builds tile examples from labelled frames, grows
-//! and prunes the probability tree, writes the model and prints the training table.
+//! and prunes the probability tree, writes the model and prints the training table; on posed
+//! captures, a second round with the frames the first model's located object labels
+//! (`train_views`).
 
 use super::{say, say_part, usage_check};
 
@@ -7,6 +9,7 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::Context;
+use objloc_core::learn::dataset::ExampleSet;
 use objloc_core::learn::dataset::{
     Augment, LoadedSession, TILE_PX_RANGE, export_features, load_session,
 };
@@ -20,7 +23,8 @@ use super::TopicArgs;
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// Labelled sessions (frames with a label on /labels are used).
+    /// Labelled sessions (frames with a label on /labels are used; on posed captures also
+    /// frames the located object labels, see --no-more-views).
     #[arg(required = true)]
     sessions: Vec<PathBuf>,
     /// Where to write the model JSON.
@@ -96,10 +100,21 @@ pub struct Args {
     /// Also write the tile head's examples as X.npy, y.npy, split.npy into this directory.
     #[arg(long = "export-features", value_name = "DIR")]
     export_features: Option<PathBuf>,
+    /// Do not train a second round on posed captures (sessions without /cmd_vel) with the
+    /// frames nobody labelled, each labelled by the object the first model's replay locates
+    /// (docs/tree.md, "More views").
+    #[arg(long = "no-more-views")]
+    no_more_views: bool,
     #[command(flatten)]
     topics: TopicArgs,
     #[command(flatten)]
     pub(crate) rerun: crate::viz::VizArgs,
+}
+
+impl Args {
+    fn more_views(&self) -> bool {
+        !self.no_more_views
+    }
 }
 
 /// Most trees `--trees` takes: a forest of 16 costs 1.1x one tree a frame at 1080 x 1920, and
@@ -313,6 +328,87 @@ fn fit_to_sessions(
     ))
 }
 
+/// Builds the examples and fits the tile head (and the region head, when configured).
+fn fit(
+    sessions: &[LoadedSession],
+    cfg: &TrainConfig,
+    named: &dyn Fn() -> String,
+) -> anyhow::Result<(Model, ExampleSet, std::time::Duration, std::time::Duration)> {
+    let t1 = Instant::now();
+    // A session set can fail as a whole (no positive tile in any of them): name the files.
+    let set = examples(sessions, cfg)
+        .with_context(|| format!("train: building examples from {}", named()))?;
+    let mut t_features = t1.elapsed();
+    let t2 = Instant::now();
+    let mut model = fit_model(sessions, &set, cfg).context("train: fitting the tile head")?;
+    let mut t_fit = t2.elapsed();
+    if let Some(region_cfg) = cfg.region_config() {
+        let t3 = Instant::now();
+        let region_set = examples(sessions, &region_cfg).with_context(|| {
+            format!(
+                "train: building the region head's examples from {}",
+                named()
+            )
+        })?;
+        t_features += t3.elapsed();
+        let t4 = Instant::now();
+        let region = fit_model(sessions, &region_set, &region_cfg)
+            .context("train: fitting the region head")?;
+        t_fit += t4.elapsed();
+        model.region = Some(Box::new(region));
+    }
+    Ok((model, set, t_features, t_fit))
+}
+
+/// `train`'s second round (see `train_views`): the model fitted again with the frames the
+/// located object labels, when it holds; `lines` gets what stdout says.
+fn second_round(
+    model: &Model,
+    sessions: &[LoadedSession],
+    cfg: &TrainConfig,
+    topics: &objloc_core::io::session::Topics,
+    object: Option<&str>,
+    lines: &mut Vec<String>,
+) -> anyhow::Result<Option<(Model, ExampleSet)>> {
+    let (again, rounds, said) = super::train_views::more_views(model, sessions, topics, object)
+        .context("train: reading the sessions again")?;
+    lines.extend(said);
+    if !again
+        .iter()
+        .zip(sessions)
+        .any(|(a, s)| a.frames.len() > s.frames.len())
+    {
+        return Ok(None);
+    }
+    let named = || {
+        again
+            .iter()
+            .map(|s| s.path.display().to_string())
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    let (m, x, _, _) = fit(&again, cfg, &named)?;
+    Ok(
+        match super::train_views::second_round_holds(&m, sessions, &rounds, topics)
+            .context("train: replaying the sessions with the second round's model")?
+        {
+            Ok(()) => {
+                lines.push(
+                    "the second round's model finds one object, its centre inside every labelled rectangle: it is written"
+                        .into(),
+                );
+                Some((m, x))
+            }
+            Err(why) => {
+                lines.push(format!(
+                    "the second round's model is not kept ({why}): the first round's is written"
+                ));
+                None
+            }
+        },
+    )
+}
+
 pub fn run(args: Args) -> anyhow::Result<()> {
     let topics = args.topics.topics()?;
     let mut cfg = config(&args)?;
@@ -355,9 +451,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let chosen = fit_to_sessions(&args, &mut cfg, &sessions);
     check_tiles(&cfg)?;
     let t_load = t0.elapsed();
-    let t1 = Instant::now();
     stage.set_message("train: tile features");
-    // A session set can fail as a whole (no positive tile in any of them): name the files.
     let named = || {
         args.sessions
             .iter()
@@ -365,28 +459,23 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             .collect::<Vec<_>>()
             .join(", ")
     };
-    let set = examples(&sessions, &cfg)
-        .with_context(|| format!("train: building examples from {}", named()))?;
-    stage.set_message("train: fitting the tile head");
-    let mut t_features = t1.elapsed();
-    let t2 = Instant::now();
-    let mut model = fit_model(&sessions, &set, &cfg).context("train: fitting the tile head")?;
-    let mut t_fit = t2.elapsed();
-    if let Some(region_cfg) = cfg.region_config() {
+    let (mut model, mut set, t_features, t_fit) = fit(&sessions, &cfg, &named)?;
+    let mut more = Vec::new();
+    let mut t_more = None;
+    let captures = sessions.iter().filter(|s| s.commands == 0).count();
+    if args.more_views() && captures > 0 && captures < sessions.len() {
+        more.push(
+            "no second round: some training sessions are a ground robot's (/cmd_vel), some posed captures".into(),
+        );
+    }
+    if args.more_views() && captures == sessions.len() {
+        stage.set_message("train: a second round on the object's other views");
         let t3 = Instant::now();
-        stage.set_message("train: the region head");
-        let region_set = examples(&sessions, &region_cfg).with_context(|| {
-            format!(
-                "train: building the region head's examples from {}",
-                named()
-            )
-        })?;
-        t_features += t3.elapsed();
-        let t4 = Instant::now();
-        let region = fit_model(&sessions, &region_set, &region_cfg)
-            .context("train: fitting the region head")?;
-        t_fit += t4.elapsed();
-        model.region = Some(Box::new(region));
+        let object = args.object.as_deref();
+        if let Some((m, x)) = second_round(&model, &sessions, &cfg, &topics, object, &mut more)? {
+            (model, set) = (m, x);
+        }
+        t_more = Some(t3.elapsed());
     }
     stage.finish_and_clear();
     model
@@ -398,10 +487,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if let Some(line) = &chosen {
         say!("{line}");
     }
+    for line in &more {
+        say!("{line}");
+    }
     say_part!("{}", model.summary_table());
     log_to_rerun(&args, &model, &sessions)?;
     say!(
-        "time: load+decode {:.3} s, features {:.3} s, fit time {:.4} s{}",
+        "time: load+decode {:.3} s, features {:.3} s, fit time {:.4} s{}{}",
         t_load.as_secs_f64(),
         t_features.as_secs_f64(),
         t_fit.as_secs_f64(),
@@ -409,7 +501,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             " (both heads)"
         } else {
             ""
-        }
+        },
+        t_more.map_or(String::new(), |t| format!(
+            ", second round (replays and refit) {:.3} s",
+            t.as_secs_f64()
+        ))
     );
     say!("model written to {}", args.output.display());
     Ok(())

@@ -2,7 +2,8 @@
 //! reads a session) driving the state it updates: the belief grid ([`grid`]), the motion
 //! model's blur ([`motion`]), pose refinement against landmarks ([`refine`]) and the floor
 //! ([`floor`]), the objects found in the belief ([`objects`]) and, where the grid cannot
-//! bound them, their centres triangulated from their detections ([`locate`]).
+//! bound them, their centres triangulated from their detections ([`locate`]); and the
+//! rectangles a located object projects to in a session's frames ([`relabel`]).
 //!
 //! May import: [`crate::types`], [`crate::learn`] and (the replay only) [`crate::io`].
 //! No clock, no unseeded randomness, no unordered iteration.
@@ -13,4 +14,5 @@ pub mod locate;
 pub mod motion;
 pub mod objects;
 pub mod refine;
+pub mod relabel;
 pub mod replay;

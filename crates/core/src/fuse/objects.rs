@@ -13,7 +13,9 @@
 //!
 //! Instances weaker than the peak's rule allows (a mug on the floor that fewer frames saw
 //! than its twin on a table) are looked for in the final grid, apart from the objects found,
-//! by stricter tests of their own ([`WEAK_SEED_FRACTION`]); they are marked as such.
+//! by stricter tests of their own ([`WEAK_SEED_FRACTION`]), one of them absolute: the belief
+//! must hold such an instance more likely there than not ([`WEAK_MIN_PROBABILITY`]); they are
+//! marked as such.
 //!
 //! Invariants: pure function of the grid's cells (not of which blocks it stores);
 //! components are found in flat index order, so the output order is deterministic. No I/O.
@@ -1018,7 +1020,8 @@ mod tests {
             ]
         };
         let params = ObjectParams::default();
-        // 5.0: 0.42 of the peak, 1.25 per view against 1.5, p 0.60: an instance.
+        // 5.0: 0.42 of the peak, 1.25 per view (at least half the peak's 1.5), p 0.60: an
+        // instance.
         let found = find_objects(&grid_with(&twin(5.0)), &params);
         assert_eq!(found.len(), 2);
         assert!(
@@ -1026,7 +1029,7 @@ mod tests {
             "{}",
             found[1].peak_probability
         );
-        // 4.0: 0.33 of the peak, 1.0 per view, but p 0.355: not.
+        // 4.0: 0.33 of the peak, 1.0 per view (above 0.75), but p 0.355: not.
         assert_eq!(find_objects(&grid_with(&twin(4.0)), &params).len(), 1);
     }
 }

@@ -119,6 +119,19 @@ pub fn load_session(
     object: Option<&str>,
     labelled_only: bool,
 ) -> Result<LoadedSession, DatasetError> {
+    load_session_with(path, topics, object, labelled_only, &BTreeMap::new())
+}
+
+/// [`load_session`], with `extra` rectangles (by header stamp) taken as the labels of the
+/// frames that have none of their own: a labeller's rectangle, and a background label, always
+/// win. With `object`, a frame whose labels all name other objects counts as having none.
+pub fn load_session_with(
+    path: &Path,
+    topics: Topics,
+    object: Option<&str>,
+    labelled_only: bool,
+    extra: &BTreeMap<i64, Vec<RegionOfInterest>>,
+) -> Result<LoadedSession, DatasetError> {
     let sha256 = file_sha256(path)?;
     let reader = SessionReader::open_scoped(path, topics, IndexScope::Roles)?;
     reader.require_frames()?;
@@ -153,6 +166,9 @@ pub fn load_session(
             }
             _ => {}
         }
+    }
+    for (&stamp_ns, regions) in extra {
+        labels.entry(stamp_ns).or_insert_with(|| regions.clone());
     }
     let selected: Vec<_> = frames
         .into_iter()
@@ -569,6 +585,44 @@ mod tests {
             width: w,
             do_rectify: false,
         }
+    }
+
+    /// Extra rectangles label only frames without a label of their own (the shipped chair
+    /// training session: 3 frames with a chair, 18 background frames).
+    #[test]
+    fn extra_rectangles_never_replace_a_labellers() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../recordings/chair-train.mcap");
+        let base = load_session(&path, Topics::default(), Some("chair"), true).unwrap();
+        assert_eq!(base.frames.len(), 21);
+        let extra: BTreeMap<i64, Vec<RegionOfInterest>> = base
+            .frames
+            .iter()
+            .map(|f| (f.stamp_ns, vec![roi(1, 2, 3, 4)]))
+            .collect();
+        let with =
+            load_session_with(&path, Topics::default(), Some("chair"), true, &extra).unwrap();
+        let regions = |s: &LoadedSession| {
+            s.frames
+                .iter()
+                .map(|f| f.regions.clone())
+                .collect::<Vec<_>>()
+        };
+        assert_eq!(regions(&with), regions(&base));
+        // Labelled for another object: the chair frames have no label of the mug's, so the
+        // extra rectangle labels them; the background frames stay background.
+        let mug = load_session_with(&path, Topics::default(), Some("mug"), true, &extra).unwrap();
+        assert_eq!(mug.frames.len(), 21);
+        let added = mug
+            .frames
+            .iter()
+            .filter(|f| f.regions.as_deref() == Some(&[roi(1, 2, 3, 4)][..]))
+            .count();
+        let background = mug
+            .frames
+            .iter()
+            .filter(|f| f.regions.as_deref() == Some(&[][..]))
+            .count();
+        assert_eq!((added, background), (3, 18));
     }
 
     #[test]
