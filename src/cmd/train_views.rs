@@ -145,6 +145,12 @@ fn locate(
             f.regions.as_ref().map_or(0, Vec::len)
         )));
     }
+    // Cheap before a replay: a session whose every frame is labelled has nothing to add.
+    let reader = SessionReader::open_scoped(&s.path, topics.clone(), IndexScope::Roles)?;
+    let frames = reader.count(&topics.compressed_image) + reader.count(&topics.image);
+    if frames <= s.frames.len() {
+        return Ok(Err("every frame of the session is labelled already".into()));
+    }
     let outcome = match replay_once(model, s, topics)? {
         Ok(o) => o,
         Err(why) => return Ok(Err(why)),
