@@ -85,6 +85,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             &stream.rec,
             &model,
             std::slice::from_ref(&session),
+            std::slice::from_ref(&session),
         )?;
     }
     if let Some(p) = stream.finish()? {

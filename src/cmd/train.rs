@@ -235,8 +235,14 @@ fn default_recording(args: &Args) -> std::path::PathBuf {
 }
 
 /// The tree as a graph and the training frames with their maps, in Rerun (by default beside
-/// the model).
-fn log_to_rerun(args: &Args, model: &Model, sessions: &[LoadedSession]) -> anyhow::Result<()> {
+/// the model); `labelled`: the sessions' frames as a person labelled them (the others of
+/// `sessions` were labelled by the located object).
+fn log_to_rerun(
+    args: &Args,
+    model: &Model,
+    sessions: &[LoadedSession],
+    labelled: &[LoadedSession],
+) -> anyhow::Result<()> {
     let hashes: Vec<&str> = sessions.iter().map(|s| s.sha256.as_str()).collect();
     let id = objloc_core::out::view::recording_id(
         "train",
@@ -251,7 +257,7 @@ fn log_to_rerun(args: &Args, model: &Model, sessions: &[LoadedSession]) -> anyho
     .context("train: opening the Rerun recording")?;
     if stream.is_on() {
         crate::viz::train::log_tree(&stream.rec, model)?;
-        crate::viz::train::log_training_frames(&stream.rec, model, sessions)?;
+        crate::viz::train::log_training_frames(&stream.rec, model, sessions, labelled)?;
     }
     if let Some(p) = stream.finish()? {
         say!(
@@ -369,7 +375,7 @@ fn second_round(
     topics: &objloc_core::io::session::Topics,
     object: Option<&str>,
     lines: &mut Vec<String>,
-) -> anyhow::Result<Option<(Model, ExampleSet)>> {
+) -> anyhow::Result<Option<(Model, ExampleSet, Vec<LoadedSession>)>> {
     let (again, rounds, said) = super::train_views::more_views(model, sessions, topics, object)
         .context("train: reading the sessions again")?;
     lines.extend(said);
@@ -397,7 +403,7 @@ fn second_round(
                     "the second round's model finds one object, its centre inside every labelled rectangle: it is written"
                         .into(),
                 );
-                Some((m, x))
+                Some((m, x, again))
             }
             Err(why) => {
                 lines.push(format!(
@@ -462,6 +468,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let (mut model, mut set, t_features, t_fit) = fit(&sessions, &cfg, &named)?;
     let mut more = Vec::new();
     let mut t_more = None;
+    // What Rerun shows: the frames the model was fitted on (the second round's, when kept).
+    let mut shown = None;
     let captures = sessions.iter().filter(|s| s.commands == 0).count();
     if args.more_views() && captures > 0 && captures < sessions.len() {
         more.push(
@@ -472,8 +480,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         stage.set_message("train: a second round on the object's other views");
         let t3 = Instant::now();
         let object = args.object.as_deref();
-        if let Some((m, x)) = second_round(&model, &sessions, &cfg, &topics, object, &mut more)? {
-            (model, set) = (m, x);
+        if let Some((m, x, s)) = second_round(&model, &sessions, &cfg, &topics, object, &mut more)?
+        {
+            (model, set, shown) = (m, x, Some(s));
         }
         t_more = Some(t3.elapsed());
     }
@@ -491,7 +500,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         say!("{line}");
     }
     say_part!("{}", model.summary_table());
-    log_to_rerun(&args, &model, &sessions)?;
+    log_to_rerun(
+        &args,
+        &model,
+        shown.as_deref().unwrap_or(&sessions),
+        &sessions,
+    )?;
     say!(
         "time: load+decode {:.3} s, features {:.3} s, fit time {:.4} s{}{}",
         t_load.as_secs_f64(),

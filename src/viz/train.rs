@@ -81,16 +81,24 @@ pub fn log_tree(rec: &RecordingStream, model: &Model) -> Result<(), VizError> {
 }
 
 /// Logs every labelled frame of `sessions` with its rectangles and the model's tile
-/// probabilities, one step of `frame` each.
+/// probabilities, one step of `frame` each: a person's rectangles (those of the frames
+/// `labelled`, session by session) in green, those the located object gave the other frames
+/// (`train`'s second round) in orange.
 pub fn log_training_frames(
     rec: &RecordingStream,
     model: &Model,
     sessions: &[LoadedSession],
+    labelled: &[LoadedSession],
 ) -> Result<(), VizError> {
     let mut index = 0i64;
-    for s in sessions {
+    for (i, s) in sessions.iter().enumerate() {
+        let by_person: std::collections::BTreeSet<i64> = labelled
+            .get(i)
+            .map(|l| l.frames.iter().map(|f| f.stamp_ns).collect())
+            .unwrap_or_default();
         for f in &s.frames {
             let Some(regions) = &f.regions else { continue };
+            let person = by_person.contains(&f.stamp_ns);
             rec.set_time(
                 TIMELINE_LOG_TIME,
                 rerun::TimeCell::from_timestamp_nanos_since_epoch(
@@ -122,16 +130,25 @@ pub fn log_training_frames(
                         .map(|r| [r.x_offset as f32, r.y_offset as f32]),
                     regions.iter().map(|r| [r.width as f32, r.height as f32]),
                 )
-                .with_colors([rerun::Color::from_rgb(0, 255, 0)])
+                .with_colors([if person {
+                    rerun::Color::from_rgb(0, 255, 0)
+                } else {
+                    rerun::Color::from_rgb(255, 160, 0)
+                }])
                 .with_draw_order(20.0),
             )
             .map_err(log_err)?;
             rec.log(
                 "train/session",
                 &rerun::TextDocument::new(format!(
-                    "{} ({} label rectangles)",
+                    "{} ({} label rectangles{})",
                     s.path.display(),
-                    regions.len()
+                    regions.len(),
+                    if person {
+                        ""
+                    } else {
+                        ", drawn by the object the first round's replay located"
+                    }
                 )),
             )
             .map_err(log_err)?;

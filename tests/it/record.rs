@@ -1067,10 +1067,28 @@ fn train_labels_a_captures_other_frames_by_the_object_it_locates() {
     let three = [rows[0], rows[1], rows[4], rows[7]].join("\n");
     let session = import("three", &three);
     let model = dir.path().join("m.json");
+    let rrd = dir.path().join("m.rrd");
     let text = ok(&objloc(
-        &["train", p(&session), "-o", p(&model), "--no-rerun"],
+        &["train", p(&session), "-o", p(&model), "--save", p(&rrd)],
         &[],
     ));
+    // Rerun draws the person's three rectangles green, the five the chair gave orange
+    // (RGBA as u32), read back by the Rerun SDK.
+    let chunks = crate::common::pyenv::py_json("rrd_contents.py", &[rrd.as_os_str()]);
+    let colours: Vec<u64> = chunks
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|c| c["entity"] == "/train/frame/labels")
+        .flat_map(|c| c["columns"]["Boxes2D:colors"].as_array().unwrap().clone())
+        .map(|row| row[0].as_u64().unwrap())
+        .collect();
+    let (green, orange) = (0x00ff_00ff, 0xffa0_00ff);
+    assert_eq!(
+        colours,
+        [green, orange, orange, green, orange, orange, green, orange],
+        "{chunks}"
+    );
     let line = text
         .lines()
         .find(|l| l.contains("second round"))
