@@ -415,21 +415,12 @@ fn second_round(
     )
 }
 
-pub fn run(args: Args) -> anyhow::Result<()> {
-    let topics = args.topics.topics()?;
-    let mut cfg = config(&args)?;
-    let recording = args.rerun.file(&default_recording(&args));
-    let mut outputs = vec![("-o", args.output.as_path())];
-    outputs.extend(recording.as_ref().map(|(what, p)| (*what, p.as_path())));
-    let inputs: Vec<(&str, &std::path::Path)> = args
-        .sessions
-        .iter()
-        .map(|p| ("session", p.as_path()))
-        .collect();
-    super::prepare_outputs(&inputs, &outputs)?;
-    let stage = super::progress::stage_spinner(args.quiet);
-    stage.set_message("train: reading sessions");
-    let t0 = Instant::now();
+/// The training sessions, their labelled frames decoded; an error naming the labels' objects
+/// when `--object` names none of them.
+fn load_sessions(
+    args: &Args,
+    topics: &objloc_core::io::session::Topics,
+) -> anyhow::Result<Vec<LoadedSession>> {
     let sessions = args
         .sessions
         .iter()
@@ -454,6 +445,25 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             super::names_or_none(&names)
         );
     }
+    Ok(sessions)
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let topics = args.topics.topics()?;
+    let mut cfg = config(&args)?;
+    let recording = args.rerun.file(&default_recording(&args));
+    let mut outputs = vec![("-o", args.output.as_path())];
+    outputs.extend(recording.as_ref().map(|(what, p)| (*what, p.as_path())));
+    let inputs: Vec<(&str, &std::path::Path)> = args
+        .sessions
+        .iter()
+        .map(|p| ("session", p.as_path()))
+        .collect();
+    super::prepare_outputs(&inputs, &outputs)?;
+    let stage = super::progress::stage_spinner(args.quiet);
+    stage.set_message("train: reading sessions");
+    let t0 = Instant::now();
+    let sessions = load_sessions(&args, &topics)?;
     let chosen = fit_to_sessions(&args, &mut cfg, &sessions);
     check_tiles(&cfg)?;
     let t_load = t0.elapsed();
