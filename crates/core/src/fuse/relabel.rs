@@ -141,48 +141,33 @@ mod tests {
         (camera, spec, vec![0])
     }
 
+    /// The rectangle of [`one_cell_ahead`]`(x_m)` through `lens`, seen from `pose`.
+    fn seen(x_m: f64, lens: &Distortion, pose: &Iso3) -> Option<PixelRect> {
+        let (camera, spec, cells) = one_cell_ahead(x_m);
+        object_rectangle(&camera, lens, pose, &spec, &cells)
+    }
+
+    fn ahead(x_m: f64, lens: &Distortion) -> Option<PixelRect> {
+        seen(x_m, lens, &Iso3::identity())
+    }
+
     #[test]
     fn a_cell_ahead_gives_the_box_of_its_near_face() {
-        let (camera, spec, cells) = one_cell_ahead(0.0);
-        let r = object_rectangle(
-            &camera,
-            &Distortion::default(),
-            &Iso3::identity(),
-            &spec,
-            &cells,
-        )
-        .unwrap();
+        let r = ahead(0.0, &Distortion::default()).unwrap();
         assert_eq!((r.x_px, r.y_px, r.width_px, r.height_px), (47, 47, 6, 6));
         // Behind the camera: none.
         let turned = Iso3::rotation(nalgebra::Vector3::new(0.0, std::f64::consts::PI, 0.0));
-        assert!(
-            object_rectangle(&camera, &Distortion::default(), &turned, &spec, &cells).is_none()
-        );
+        assert!(seen(0.0, &Distortion::default(), &turned).is_none());
     }
 
     #[test]
     fn a_box_mostly_outside_the_image_labels_nothing_and_one_partly_outside_is_clipped() {
         // Centred on the image's right edge (u = 50 + 100 x / 2 = 100 at x = 1 m): about half
         // inside, 47 % by the near face's wider span: none.
-        let (camera, spec, cells) = one_cell_ahead(1.0);
-        let none = object_rectangle(
-            &camera,
-            &Distortion::default(),
-            &Iso3::identity(),
-            &spec,
-            &cells,
-        );
+        let none = ahead(1.0, &Distortion::default());
         assert!(none.is_none(), "{none:?}");
         // Its far face from 94.88 px, a third of the box past the edge: clipped at 100 px.
-        let (camera, spec, cells) = one_cell_ahead(0.97);
-        let r = object_rectangle(
-            &camera,
-            &Distortion::default(),
-            &Iso3::identity(),
-            &spec,
-            &cells,
-        )
-        .unwrap();
+        let r = ahead(0.97, &Distortion::default()).unwrap();
         assert_eq!(r.x_px + r.width_px, 100);
         assert_eq!(r.x_px, 94);
     }
@@ -191,20 +176,12 @@ mod tests {
     fn barrel_distortion_pulls_the_box_towards_the_centre() {
         // k1 < 0 moves an off-centre point inwards, by x k1 r^2: at x = 0.4 (u = 90 px) and
         // k1 = -0.5, 0.4 * 0.5 * 0.16 = 0.032, 3.2 px.
-        let (camera, spec, cells) = one_cell_ahead(0.8);
-        let ideal = object_rectangle(
-            &camera,
-            &Distortion::default(),
-            &Iso3::identity(),
-            &spec,
-            &cells,
-        )
-        .unwrap();
+        let ideal = ahead(0.8, &Distortion::default()).unwrap();
         let barrel = Distortion {
             k1: -0.5,
             ..Distortion::default()
         };
-        let r = object_rectangle(&camera, &barrel, &Iso3::identity(), &spec, &cells).unwrap();
+        let r = ahead(0.8, &barrel).unwrap();
         assert!(r.x_px + 2 <= ideal.x_px, "{r:?} {ideal:?}");
         // k1 = -2 folds back beyond r = sqrt(1 / 6) = 0.41: the cell at x = 0.4 (its corners
         // up to 0.44) gives no rectangle, though its folded projection lies in the image.
@@ -212,7 +189,8 @@ mod tests {
             k1: -2.0,
             ..Distortion::default()
         };
-        assert!(object_rectangle(&camera, &fold, &Iso3::identity(), &spec, &cells).is_none());
+        assert!(ahead(0.8, &fold).is_none());
+        let (camera, _, _) = one_cell_ahead(0.8);
         let (u, _) = distorted_pixel(&camera, &fold, 50.0 + 100.0 * 0.44, 50.0);
         assert!((0.0..100.0).contains(&u), "{u}");
     }
