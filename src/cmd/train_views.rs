@@ -221,15 +221,7 @@ fn centre_in_view(outcome: &Outcome, stamp_ns: i64) -> bool {
 /// Whether the located object's centre, seen in the frame at `stamp_ns`, lies inside one
 /// of the `labelled` rectangles.
 fn centre_inside(outcome: &Outcome, stamp_ns: i64, labelled: &[&RegionOfInterest]) -> bool {
-    let data = &outcome.data;
-    let c = outcome.objects[0].centroid_m;
-    let seen = camera_from_odom(data, stamp_ns)
-        .and_then(|pose| {
-            data.camera
-                .project(&(pose * nalgebra::Point3::new(c[0], c[1], c[2])))
-        })
-        .map(|(u, v)| distorted_pixel(&data.camera, &data.distortion, u, v));
-    seen.is_some_and(|(u, v)| {
+    centre_px(outcome, stamp_ns).is_some_and(|(u, v)| {
         labelled.iter().any(|l| {
             let (x0, y0) = (f64::from(l.x_offset), f64::from(l.y_offset));
             (x0..=x0 + f64::from(l.width)).contains(&u)
