@@ -74,6 +74,7 @@ fn synthetic() -> LoadedSession {
                     .into_iter()
                     .collect(),
                 ),
+                unsure: Vec::new(),
             }
         })
         .collect();

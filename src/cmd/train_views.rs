@@ -21,7 +21,7 @@ use objloc_core::fuse::relabel::{PixelRect, camera_from_odom, iou, object_rectan
 use objloc_core::fuse::replay::{FuseOptions, Outcome, replay};
 use objloc_core::io::msgs::RegionOfInterest;
 use objloc_core::io::session::{IndexScope, SessionReader, Topics};
-use objloc_core::learn::dataset::{LoadedSession, load_session_with};
+use objloc_core::learn::dataset::{ExtraLabel, LoadedSession, load_session_with};
 use objloc_core::learn::model::Model;
 use objloc_core::types::lens::distorted_pixel;
 
@@ -246,10 +246,7 @@ fn rectangle(outcome: &Outcome, stamp_ns: i64) -> Option<PixelRect> {
 
 /// The rectangles the located object gives the frames of `s` without a label, evenly
 /// spread over the session (at most [`MAX_VIEWS`]); or why there are none.
-fn views(
-    outcome: &Outcome,
-    s: &LoadedSession,
-) -> Result<BTreeMap<i64, Vec<RegionOfInterest>>, String> {
+fn views(outcome: &Outcome, s: &LoadedSession) -> Result<BTreeMap<i64, ExtraLabel>, String> {
     let labelled: std::collections::BTreeSet<i64> = s.frames.iter().map(|f| f.stamp_ns).collect();
     let seen: Vec<(i64, PixelRect)> = outcome
         .data
@@ -265,14 +262,23 @@ fn views(
     Ok((0..n)
         .map(|i| {
             let (stamp_ns, r) = seen[i * seen.len() / n];
-            let roi = RegionOfInterest {
-                x_offset: r.x_px,
-                y_offset: r.y_px,
-                width: r.width_px,
-                height: r.height_px,
+            let roi = |x: i64, y: i64, w: i64, h: i64| RegionOfInterest {
+                x_offset: x.max(0) as u32,
+                y_offset: y.max(0) as u32,
+                width: (w + x.min(0)).max(0) as u32,
+                height: (h + y.min(0)).max(0) as u32,
                 do_rectify: false,
             };
-            (stamp_ns, vec![roi])
+            let (x, y) = (i64::from(r.x_px), i64::from(r.y_px));
+            let (w, h) = (i64::from(r.width_px), i64::from(r.height_px));
+            // The located object may lack thin parts (a chair's legs, cut by the object
+            // rule's grow level): round its box, as far again as the box is wide and high
+            // in all, no tile is taught as background.
+            let label = ExtraLabel {
+                regions: vec![roi(x, y, w, h)],
+                unsure: vec![roi(x - w / 2, y - h / 2, 2 * w, 2 * h)],
+            };
+            (stamp_ns, label)
         })
         .collect())
 }

@@ -89,6 +89,20 @@ pub struct SessionFrame {
     pub image: Rgb8,
     /// None = no label for this frame; Some(empty) = a background frame.
     pub regions: Option<Vec<RegionOfInterest>>,
+    /// Where the label is unsure: a tile outside `regions` that touches one of these is left
+    /// out of the examples, neither positive nor negative (a rectangle that may be too small,
+    /// from a located object rather than a person). Empty for a person's labels.
+    pub unsure: Vec<RegionOfInterest>,
+}
+
+/// A label a frame without one of its own is given ([`load_session_with`]): its rectangles,
+/// and where round them a tile is neither positive nor negative.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ExtraLabel {
+    /// The rectangles: tiles wholly inside are positive.
+    pub regions: Vec<RegionOfInterest>,
+    /// Tiles outside `regions` touching these are left out.
+    pub unsure: Vec<RegionOfInterest>,
 }
 
 /// A session read for training or prediction.
@@ -130,7 +144,7 @@ pub fn load_session_with(
     topics: Topics,
     object: Option<&str>,
     labelled_only: bool,
-    extra: &BTreeMap<i64, Vec<RegionOfInterest>>,
+    extra: &BTreeMap<i64, ExtraLabel>,
 ) -> Result<LoadedSession, DatasetError> {
     let sha256 = file_sha256(path)?;
     let reader = SessionReader::open_scoped(path, topics, IndexScope::Roles)?;
@@ -167,8 +181,12 @@ pub fn load_session_with(
             _ => {}
         }
     }
-    for (&stamp_ns, regions) in extra {
-        labels.entry(stamp_ns).or_insert_with(|| regions.clone());
+    let mut unsure: BTreeMap<i64, Vec<RegionOfInterest>> = BTreeMap::new();
+    for (&stamp_ns, label) in extra {
+        if let std::collections::btree_map::Entry::Vacant(e) = labels.entry(stamp_ns) {
+            e.insert(label.regions.clone());
+            unsure.insert(stamp_ns, label.unsure.clone());
+        }
     }
     let selected: Vec<_> = frames
         .into_iter()
@@ -200,6 +218,7 @@ pub fn load_session_with(
                 log_time_ns,
                 image,
                 regions,
+                unsure: unsure.get(&stamp_ns).cloned().unwrap_or_default(),
             })
         })
         .collect::<Result<Vec<_>, DatasetError>>()?;
@@ -262,6 +281,15 @@ pub fn tile_inside(regions: &[RegionOfInterest], x: u32, y: u32, tile_px: u32) -
             && y >= r.y_offset
             && x as u64 + tile_px as u64 <= r.x_offset as u64 + r.width as u64
             && y as u64 + tile_px as u64 <= r.y_offset as u64 + r.height as u64
+    })
+}
+
+/// Whether the tile at pixel (x, y) with side `tile_px` overlaps one rectangle.
+pub fn tile_touches(regions: &[RegionOfInterest], x: u32, y: u32, tile_px: u32) -> bool {
+    let (x, y, t) = (u64::from(x), u64::from(y), u64::from(tile_px));
+    regions.iter().any(|r| {
+        let (rx, ry) = (u64::from(r.x_offset), u64::from(r.y_offset));
+        x < rx + u64::from(r.width) && rx < x + t && y < ry + u64::from(r.height) && ry < y + t
     })
 }
 
@@ -419,10 +447,14 @@ pub fn build_examples(
     params.validate()?;
     let feature = params.features;
     let t = params.tile_px;
-    let frames: Vec<(&Rgb8, &[RegionOfInterest])> = sessions
+    let frames: Vec<(&Rgb8, &[RegionOfInterest], &[RegionOfInterest])> = sessions
         .iter()
         .flat_map(|s| &s.frames)
-        .filter_map(|f| f.regions.as_deref().map(|r| (&f.image, r)))
+        .filter_map(|f| {
+            f.regions
+                .as_deref()
+                .map(|r| (&f.image, r, f.unsure.as_slice()))
+        })
         .collect();
     let offsets: Vec<(u32, u32)> = {
         let steps: Vec<u32> = (0..t).step_by(params.train_stride_px as usize).collect();
@@ -434,10 +466,10 @@ pub fn build_examples(
     // Per frame, per grid offset: (sparse histograms, labels). Parallel over frames, ordered
     // collect; sparse here, in parallel, because the dense histograms of every shifted grid
     // would take hundreds of MB and their scan was a tenth of the training time.
-    let per_frame: Vec<Vec<(SparseTiles, Vec<bool>)>> = frames
+    let per_frame: Vec<Vec<(SparseTiles, Vec<Option<bool>>)>> = frames
         .par_iter()
         .enumerate()
-        .map(|(fi, (img, regions))| {
+        .map(|(fi, (img, regions, unsure))| {
             // The bins of each light variant this frame's grids use, computed once.
             let mut planes: Vec<Option<Vec<Vec<u16>>>> = vec![None; LIGHT_VARIANTS.len()];
             for k in 0..offsets.len() {
@@ -469,14 +501,7 @@ pub fn build_examples(
                         ),
                         params.context_tiles,
                     );
-                    let mut labels = Vec::with_capacity(h.rows * h.cols);
-                    for r in 0..h.rows {
-                        for c in 0..h.cols {
-                            let x = dx + c as u32 * t;
-                            let y = dy + r as u32 * t;
-                            labels.push(tile_inside(regions, x, y, t));
-                        }
-                    }
+                    let labels = grid_labels(regions, unsure, (h.rows, h.cols), (dx, dy), t);
                     (SparseTiles::from_dense(&h.counts, h.bins), labels)
                 })
                 .collect()
@@ -488,22 +513,26 @@ pub fn build_examples(
     // Aligned grid first (offset index 0 is (0, 0)); its thirds are assigned together.
     let aligned_labels: Vec<bool> = per_frame
         .iter()
-        .flat_map(|grids| grids[0].1.iter().copied())
+        .flat_map(|grids| grids[0].1.iter().flatten().copied())
         .collect();
     let thirds = assign_thirds(&aligned_labels, params.seed);
     let mut k = 0;
     for grids in &per_frame {
         let (tiles, labels) = &grids[0];
-        for (i, &y) in labels.iter().enumerate() {
-            ex.push_sparse(tiles.tile(i), y, thirds[k]);
-            k += 1;
+        for (i, y) in labels.iter().enumerate() {
+            if let Some(y) = *y {
+                ex.push_sparse(tiles.tile(i), y, thirds[k]);
+                k += 1;
+            }
         }
     }
     let aligned = ex.len();
     for grids in &per_frame {
         for (tiles, labels) in &grids[1..] {
-            for (i, &y) in labels.iter().enumerate() {
-                ex.push_sparse(tiles.tile(i), y, Third::Train);
+            for (i, y) in labels.iter().enumerate() {
+                if let Some(y) = *y {
+                    ex.push_sparse(tiles.tile(i), y, Third::Train);
+                }
             }
         }
     }
@@ -512,6 +541,27 @@ pub fn build_examples(
         aligned,
         labelled_frames: frames.len(),
     })
+}
+
+/// The labels of a grid of `rows` x `cols` tiles of side `t` starting at pixel (dx, dy), row
+/// by row: positive wholly inside `regions`, left out (None) where otherwise touching
+/// `unsure`, negative elsewhere.
+fn grid_labels(
+    regions: &[RegionOfInterest],
+    unsure: &[RegionOfInterest],
+    (rows, cols): (usize, usize),
+    (dx, dy): (u32, u32),
+    t: u32,
+) -> Vec<Option<bool>> {
+    let mut labels = Vec::with_capacity(rows * cols);
+    for r in 0..rows {
+        for c in 0..cols {
+            let (x, y) = (dx + c as u32 * t, dy + r as u32 * t);
+            let inside = tile_inside(regions, x, y, t);
+            labels.push((inside || !tile_touches(unsure, x, y, t)).then_some(inside));
+        }
+    }
+    labels
 }
 
 /// The non-zero (feature, count) entries of a grid's tiles, in feature order.
@@ -594,10 +644,16 @@ mod tests {
         let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../recordings/chair-train.mcap");
         let base = load_session(&path, Topics::default(), Some("chair"), true).unwrap();
         assert_eq!(base.frames.len(), 21);
-        let extra: BTreeMap<i64, Vec<RegionOfInterest>> = base
+        let extra: BTreeMap<i64, ExtraLabel> = base
             .frames
             .iter()
-            .map(|f| (f.stamp_ns, vec![roi(1, 2, 3, 4)]))
+            .map(|f| {
+                let label = ExtraLabel {
+                    regions: vec![roi(1, 2, 3, 4)],
+                    unsure: vec![roi(0, 0, 9, 9)],
+                };
+                (f.stamp_ns, label)
+            })
             .collect();
         let with =
             load_session_with(&path, Topics::default(), Some("chair"), true, &extra).unwrap();
@@ -608,6 +664,7 @@ mod tests {
                 .collect::<Vec<_>>()
         };
         assert_eq!(regions(&with), regions(&base));
+        assert!(with.frames.iter().all(|f| f.unsure.is_empty()));
         // Labelled for another object: the chair frames have no label of the mug's, so the
         // extra rectangle labels them; the background frames stay background.
         let mug = load_session_with(&path, Topics::default(), Some("mug"), true, &extra).unwrap();
@@ -623,6 +680,62 @@ mod tests {
             .filter(|f| f.regions.as_deref() == Some(&[][..]))
             .count();
         assert_eq!((added, background), (3, 18));
+        // Only the frames the extra label labels carry its unsure band.
+        let banded = mug.frames.iter().filter(|f| !f.unsure.is_empty()).count();
+        assert_eq!(banded, 3);
+    }
+
+    /// A tile outside the rectangles that touches an unsure band is left out; one wholly
+    /// inside stays positive, one clear of the band stays negative.
+    #[test]
+    fn tiles_in_an_unsure_band_are_left_out() {
+        let img = Rgb8 {
+            width: 32,
+            height: 16,
+            data: vec![128; 32 * 16 * 3],
+        };
+        let frame = |unsure: Vec<RegionOfInterest>| SessionFrame {
+            stamp_ns: 0,
+            log_time_ns: 0,
+            image: img.clone(),
+            regions: Some(vec![roi(0, 0, 8, 8)]),
+            unsure,
+        };
+        let session = |unsure| LoadedSession {
+            path: "s.mcap".into(),
+            sha256: String::new(),
+            frames: vec![frame(unsure)],
+            label_objects: Default::default(),
+            commands: 0,
+            warnings: Vec::new(),
+        };
+        let params = ExampleParams {
+            features: crate::learn::features::FeatureSpec::RGB332,
+            tile_px: 8,
+            train_stride_px: 8,
+            seed: 0,
+            context_tiles: 0,
+            augment: Augment::None,
+        };
+        // 4 x 2 tiles of 8 px: tile (0, 0) positive, 7 negative.
+        let all = build_examples(&[session(Vec::new())], &params).unwrap();
+        assert_eq!(
+            (
+                all.examples.len(),
+                all.examples.labels.iter().filter(|&&y| y).count()
+            ),
+            (8, 1)
+        );
+        // A band over x 0..12, y 0..16 touches tiles (0, 0), (1, 0), (0, 1), (1, 1): the
+        // positive stays, the three negatives go.
+        let banded = build_examples(&[session(vec![roi(0, 0, 12, 16)])], &params).unwrap();
+        assert_eq!(
+            (
+                banded.examples.len(),
+                banded.examples.labels.iter().filter(|&&y| y).count()
+            ),
+            (5, 1)
+        );
     }
 
     #[test]
