@@ -23,6 +23,7 @@ use objloc_core::io::msgs::RegionOfInterest;
 use objloc_core::io::session::{IndexScope, SessionReader, Topics};
 use objloc_core::learn::dataset::{ExtraLabel, LoadedSession, load_session_with};
 use objloc_core::learn::model::Model;
+use objloc_core::out::rects::{RectCamera, RectView, projects_inside};
 use objloc_core::types::lens::distorted_pixel;
 
 /// Most frames one session adds: more cost features and fitting time in proportion and
@@ -85,7 +86,7 @@ pub fn second_round_holds(
     topics: &Topics,
 ) -> anyhow::Result<Result<(), String>> {
     for (s, _) in sessions.iter().zip(rounds).filter(|(_, r)| **r) {
-        let outcome = match replay_once(model, s, topics)? {
+        let outcome = match replay_once(model, &reopen(s, topics)?) {
             Ok(o) => o,
             Err(why) => return Ok(Err(format!("{}: with its model {why}", s.path.display()))),
         };
@@ -103,27 +104,28 @@ pub fn second_round_holds(
     Ok(Ok(()))
 }
 
-/// The session replayed with `model`, when it finds exactly one object; or why not (the
-/// inner error, said on stdout: a training session need not replay, it may lack the camera
-/// or the poses). A file that can no longer be opened is the outer error: `train` read it a
-/// moment ago, and stops.
-fn replay_once(
-    model: &Model,
-    s: &LoadedSession,
-    topics: &Topics,
-) -> anyhow::Result<Result<Outcome, String>> {
-    let reader = SessionReader::open_scoped(&s.path, topics.clone(), IndexScope::Roles)?;
-    let outcome = match replay(&reader, model, &FuseOptions::default(), &mut []) {
-        Ok(o) => o,
-        Err(e) => return Ok(Err(format!("it does not replay: {e}"))),
-    };
+/// The session replayed with `model`, when it finds exactly one object; or why not (said on
+/// stdout: a training session need not replay, it may lack the camera or the poses).
+fn replay_once(model: &Model, reader: &SessionReader) -> Result<Outcome, String> {
+    let outcome = replay(reader, model, &FuseOptions::default(), &mut [])
+        .map_err(|e| format!("it does not replay: {e}"))?;
     if outcome.objects.len() != 1 {
-        return Ok(Err(format!(
+        return Err(format!(
             "the replay finds {} objects, not one",
             outcome.objects.len()
-        )));
+        ));
     }
-    Ok(Ok(outcome))
+    Ok(outcome)
+}
+
+/// The session's reader, opened again; failing is the outer error: `train` read the file a
+/// moment ago, and stops.
+fn reopen(s: &LoadedSession, topics: &Topics) -> anyhow::Result<SessionReader> {
+    Ok(SessionReader::open_scoped(
+        &s.path,
+        topics.clone(),
+        IndexScope::Roles,
+    )?)
 }
 
 /// The session replayed with `model`, when every labelled frame holds one rectangle, the
@@ -146,12 +148,12 @@ fn locate(
         )));
     }
     // Cheap before a replay: a session whose every frame is labelled has nothing to add.
-    let reader = SessionReader::open_scoped(&s.path, topics.clone(), IndexScope::Roles)?;
+    let reader = reopen(s, topics)?;
     let frames = reader.count(&topics.compressed_image) + reader.count(&topics.image);
     if frames <= s.frames.len() {
         return Ok(Err("every frame of the session is labelled already".into()));
     }
-    let outcome = match replay_once(model, s, topics)? {
+    let outcome = match replay_once(model, &reader) {
         Ok(o) => o,
         Err(why) => return Ok(Err(why)),
     };
@@ -219,14 +221,24 @@ fn centre_in_view(outcome: &Outcome, stamp_ns: i64) -> bool {
 }
 
 /// Whether the located object's centre, seen in the frame at `stamp_ns`, lies inside one
-/// of the `labelled` rectangles.
+/// of the `labelled` rectangles (as `eval` counts a frame "inside").
 fn centre_inside(outcome: &Outcome, stamp_ns: i64, labelled: &[&RegionOfInterest]) -> bool {
-    centre_px(outcome, stamp_ns).is_some_and(|(u, v)| {
-        labelled.iter().any(|l| {
-            let (x0, y0) = (f64::from(l.x_offset), f64::from(l.y_offset));
-            (x0..=x0 + f64::from(l.width)).contains(&u)
-                && (y0..=y0 + f64::from(l.height)).contains(&v)
-        })
+    let data = &outcome.data;
+    let cam = RectCamera {
+        camera: data.camera,
+        distortion: data.distortion,
+    };
+    let Some(camera_from_odom) = camera_from_odom(data, stamp_ns) else {
+        return false;
+    };
+    let centre = outcome.objects[0].centroid_m;
+    labelled.iter().any(|roi| {
+        let view = RectView {
+            stamp_ns,
+            odom_from_camera: camera_from_odom.inverse(),
+            roi: **roi,
+        };
+        projects_inside(&cam, &view, centre)
     })
 }
 

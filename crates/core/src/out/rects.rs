@@ -146,7 +146,7 @@ pub fn triangulate(cam: &RectCamera, views: &[RectView]) -> Option<Triangulated>
 }
 
 /// Whether `p` (in `odom`) projects into the rectangle of view `v`.
-fn projects_inside(cam: &RectCamera, v: &RectView, p: [f64; 3]) -> bool {
+pub fn projects_inside(cam: &RectCamera, v: &RectView, p: [f64; 3]) -> bool {
     let q = v.odom_from_camera.inverse() * Point3::from(p);
     let Some((u, y)) = cam.camera.project(&q) else {
         return false;
