@@ -366,6 +366,21 @@ fn fit(
     Ok((model, set, t_features, t_fit))
 }
 
+/// The second round's configuration: the first's, with the region head's training grids
+/// shifted by half a tile instead of its 2 px. The region head answers `predict`, not the
+/// fuser, and on 19 frames its 2 px grids (64 a frame at a 16 px tile) were most of the round's
+/// time and memory: 30.4 s and 1.29 GB for three labelled 1441 x 1920 frames, 13.7 s and 374 MB
+/// so, with its tile AUC 0.991 either way (docs/tree.md, "More views").
+fn round_config(cfg: &TrainConfig) -> TrainConfig {
+    TrainConfig {
+        region: cfg.region.map(|r| RegionConfig {
+            train_stride_px: r.train_stride_px.max(cfg.tile_px / 2),
+            ..r
+        }),
+        ..cfg.clone()
+    }
+}
+
 /// `train`'s second round (see `train_views`): the model fitted again with the frames the
 /// located object labels, when it holds; `lines` gets what stdout says.
 fn second_round(
@@ -393,7 +408,7 @@ fn second_round(
             .collect::<Vec<_>>()
             .join(", ")
     };
-    let (m, x, _, _) = fit(&again, cfg, &named)?;
+    let (m, x, _, _) = fit(&again, &round_config(cfg), &named)?;
     Ok(
         match super::train_views::second_round_holds(&m, sessions, &rounds, topics)
             .context("train: replaying the sessions with the second round's model")?

@@ -1107,6 +1107,15 @@ fn train_labels_a_captures_other_frames_by_the_object_it_locates() {
         "{text}"
     );
     assert!(text.contains("| 8 labelled frames"), "{text}");
+    // Its region head, on the same frames, on grids shifted by half the tile (the first
+    // round's every 2 px).
+    assert!(
+        text.lines().any(
+            |l| l.contains("2 tiles around | tile 8 px | train stride 4 px")
+                && l.ends_with("| 8 labelled frames")
+        ),
+        "{text}"
+    );
     // The second round's model finds the chair in the whole tour as the first did.
     let report = dir.path().join("r.json");
     ok(&objloc(

@@ -25,6 +25,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::fuse::grid::blocks::{BLOCK, BLOCK_CELLS, cell_offset};
 use crate::fuse::grid::{Grid, for_each_cell, sigmoid};
+use crate::types::sort::sort_indices;
 
 /// The rule that turns the belief into objects (see the module doc): hysteresis on evidence
 /// relative to the grid's peak, among cells seen often enough.
@@ -237,7 +238,7 @@ fn mark(
         }
         states.blocks.push(st);
     }
-    seeds.sort_unstable();
+    sort_indices(&mut seeds);
     (states, seeds)
 }
 
@@ -325,7 +326,7 @@ fn label(grid: &Grid, states: &mut States, seeds: &[usize], min_cells: usize) ->
             }
         }
         if members.len() >= min_cells {
-            members.sort_unstable();
+            sort_indices(&mut members);
             out.push(members);
         }
     }
@@ -399,7 +400,7 @@ fn weaker_instances(
     found: &[(Object, Vec<usize>)],
 ) -> Vec<(Object, Vec<usize>)> {
     let mut taken: Vec<usize> = found.iter().flat_map(|(_, m)| m.iter().copied()).collect();
-    taken.sort_unstable();
+    sort_indices(&mut taken);
     let Some(top) = strongest(grid, &taken) else {
         return Vec::new();
     };
@@ -468,7 +469,7 @@ fn cells_at_least(grid: &Grid, peaks: &[f32], min_views: u16, at_least: f32) -> 
             found
         })
         .collect();
-    cells.sort_unstable();
+    sort_indices(&mut cells);
     cells
 }
 
@@ -512,7 +513,7 @@ fn component_apart(
             }
         }
     }
-    comp.sort_unstable();
+    sort_indices(&mut comp);
     Some(comp)
 }
 
@@ -540,7 +541,7 @@ fn grown_within(grid: &Grid, comp: &[usize], seed: usize, grow_e: f32) -> Vec<us
             }
         }
     }
-    members.sort_unstable();
+    sort_indices(&mut members);
     members
 }
 
@@ -572,7 +573,8 @@ pub const FRAGMENT_MARGIN_CELLS: f64 = 5.0;
 fn merge_nested(grid: &Grid, mut objects: Vec<(Object, Vec<usize>)>) -> Vec<(Object, Vec<usize>)> {
     let voxel = grid.spec.voxel_size_m;
     objects.sort_by(|(a, ma), (b, mb)| b.cells.cmp(&a.cells).then(ma[0].cmp(&mb[0])));
-    let mut kept: Vec<(Object, Vec<usize>)> = Vec::with_capacity(objects.len());
+    // Each kept object with whether a fragment was merged into it.
+    let mut kept: Vec<((Object, Vec<usize>), bool)> = Vec::with_capacity(objects.len());
     for (o, members) in objects {
         let within = |k: &Object, a: usize, margin: f64| {
             o.mass_centroid_m[a] >= k.bbox_min_m[a] - margin
@@ -591,24 +593,41 @@ fn merge_nested(grid: &Grid, mut objects: Vec<(Object, Vec<usize>)>) -> Vec<(Obj
                 && within(k, 1, margin)
                 && o.mass_centroid_m[2] <= k.bbox_max_m[2] + margin
         };
-        match kept.iter_mut().find(|(k, _)| inside(k)) {
-            Some((k, km)) => {
+        match kept.iter_mut().find(|((k, _), _)| inside(k)) {
+            Some(((k, km), merged)) => {
                 km.extend_from_slice(&members);
-                km.sort_unstable();
+                // What the next fragment's test reads of the merged object, exactly as
+                // `summarize` of all its cells would give it (a count and a union of boxes);
+                // the rest is summarised once, after the pass: an object that fills a
+                // capture's grid has ~10^6 cells and dozens of fragments every frame.
+                k.cells += o.cells;
+                for a in 0..3 {
+                    k.bbox_min_m[a] = k.bbox_min_m[a].min(o.bbox_min_m[a]);
+                    k.bbox_max_m[a] = k.bbox_max_m[a].max(o.bbox_max_m[a]);
+                }
                 // Weaker only when both were: a strong object merged in brings its peak.
-                let weaker = match (k.weaker_instance, o.weaker_instance) {
+                k.weaker_instance = match (k.weaker_instance, o.weaker_instance) {
                     (Some(a), Some(b)) => Some(a.max(b)),
                     _ => None,
                 };
-                *k = Object {
-                    weaker_instance: weaker,
-                    ..summarize(grid, km)
-                };
+                *merged = true;
             }
-            None => kept.push((o, members)),
+            None => kept.push(((o, members), false)),
         }
     }
-    kept
+    kept.into_iter()
+        .map(|((k, mut km), merged)| {
+            if !merged {
+                return (k, km);
+            }
+            sort_indices(&mut km);
+            let object = Object {
+                weaker_instance: k.weaker_instance,
+                ..summarize(grid, &km)
+            };
+            (object, km)
+        })
+        .collect()
 }
 
 fn summarize(grid: &Grid, members: &[usize]) -> Object {
@@ -897,6 +916,36 @@ mod tests {
         let mut cells: Vec<usize> = one_pass.iter().map(|(o, _)| o.cells).collect();
         cells.sort_unstable();
         assert_eq!(cells, [200, 408]);
+    }
+
+    /// Several fragments merged in one pass, the box grown by the first deciding the second:
+    /// the object is the summary of all their cells, as if summarised after every merge.
+    #[test]
+    fn fragments_merged_in_one_pass_are_summarised_as_their_union() {
+        // A slab up to z = 6 cells; A (6 cells) at z 7, its centroid within 5 cells above the
+        // slab's box; B (4 cells) at z 12, 6.5 cells above the slab's box but within 5 of
+        // the box A grows it to.
+        let slab = ([2, 2, 4], [12, 12, 6], 20.0, 6);
+        let a = ([5, 5, 7], [8, 7, 8], 20.0, 6);
+        let b = ([6, 6, 12], [8, 8, 13], 20.0, 6);
+        let apart_params = ObjectParams {
+            merge_nested: false,
+            ..ObjectParams::default()
+        };
+        let without_a = grid_with(&[slab, b]);
+        let pair = find_objects_with_cells(&without_a, &apart_params);
+        assert_eq!(merge_nested(&without_a, pair).len(), 2);
+        let g = grid_with(&[slab, a, b]);
+        let apart = find_objects_with_cells(&g, &apart_params);
+        assert_eq!(apart.len(), 3, "{apart:?}");
+        let merged = merge_nested(&g, apart.clone());
+        assert_eq!(merged.len(), 1, "{merged:?}");
+        let mut all: Vec<usize> = apart.iter().flat_map(|(_, m)| m.clone()).collect();
+        all.sort_unstable();
+        assert_eq!(merged[0].1, all);
+        assert_eq!(merged[0].0, summarize(&g, &all));
+        assert_eq!(merged[0].0.cells, 200 + 6 + 4);
+        assert_eq!(merged[0].0.bbox_max_m[2], 13.0 * 0.05);
     }
 
     #[test]
