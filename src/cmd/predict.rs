@@ -8,7 +8,7 @@ use super::say;
 use std::path::PathBuf;
 
 use anyhow::Context;
-use objloc_core::learn::dataset::load_session;
+use objloc_core::learn::dataset::{LoadedSession, load_session};
 use objloc_core::learn::model::Model;
 
 use super::TopicArgs;
@@ -69,32 +69,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     bar.finish_and_clear();
     pred.write(&args.out, &session, args.heatmaps)
         .context("predict: writing outputs")?;
-    // The frames with their labels and maps, in Rerun (by default beside the outputs).
-    let id = objloc_core::out::view::recording_id(
-        "predict",
-        &[&session.sha256, &serde_json::to_string(&model)?],
-    );
-    let stream = crate::viz::open_stream(
-        &args.rerun,
-        &args.out.join("predict.rrd"),
-        &id,
-        Some(crate::viz::train_blueprint()),
-    )?;
-    if stream.is_on() {
-        crate::viz::train::log_training_frames(
-            &stream.rec,
-            &model,
-            std::slice::from_ref(&session),
-            std::slice::from_ref(&session),
-        )?;
-    }
-    if let Some(p) = stream.finish()? {
-        say!(
-            "rerun recording: {} (open it with: {})",
-            p.display(),
-            crate::viz::open_command(&p)
-        );
-    }
+    log_to_rerun(&args.rerun, &args.out, &model, &session)?;
     let (rows, cols) = pred.maps.first().map_or((0, 0), |m| (m.rows, m.cols));
     say!(
         "{} frames of {rows} x {cols} tiles written to {}",
@@ -141,5 +116,41 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         m.log_loss,
         m.accuracy
     );
+    Ok(())
+}
+
+/// The frames with their labels and maps, in Rerun (by default `predict.rrd` beside the
+/// outputs in `out`).
+fn log_to_rerun(
+    rerun: &crate::viz::VizArgs,
+    out: &std::path::Path,
+    model: &Model,
+    session: &LoadedSession,
+) -> anyhow::Result<()> {
+    let id = objloc_core::out::view::recording_id(
+        "predict",
+        &[&session.sha256, &serde_json::to_string(model)?],
+    );
+    let stream = crate::viz::open_stream(
+        rerun,
+        &out.join("predict.rrd"),
+        &id,
+        Some(crate::viz::train_blueprint()),
+    )?;
+    if stream.is_on() {
+        crate::viz::train::log_training_frames(
+            &stream.rec,
+            model,
+            std::slice::from_ref(session),
+            std::slice::from_ref(session),
+        )?;
+    }
+    if let Some(p) = stream.finish()? {
+        say!(
+            "rerun recording: {} (open it with: {})",
+            p.display(),
+            crate::viz::open_command(&p)
+        );
+    }
     Ok(())
 }

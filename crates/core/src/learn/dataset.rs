@@ -188,15 +188,37 @@ pub fn load_session_with(
             unsure.insert(stamp_ns, label.unsure.clone());
         }
     }
-    let selected: Vec<_> = frames
+    let selected: Vec<Selected> = frames
         .into_iter()
         .filter_map(|(meta, t, topic, stamp_ns)| {
             let regions = labels.get(&stamp_ns).cloned();
             (!labelled_only || regions.is_some()).then_some((meta, t, topic, stamp_ns, regions))
         })
         .collect();
-    // Decoding dominates loading; rayon's collect keeps session order.
-    let frames = selected
+    let frames = decode_selected(&reader, selected, &unsure)?;
+    let mut warnings = reader.warnings.clone();
+    warnings.extend(rectangle_warnings(&reader, &frames));
+    Ok(LoadedSession {
+        path: path.to_owned(),
+        sha256,
+        frames,
+        label_objects,
+        commands,
+        warnings,
+    })
+}
+
+/// A frame selected for loading: its message, log time, topic, stamp and rectangles.
+type Selected = (MessageMeta, u64, String, i64, Option<Vec<RegionOfInterest>>);
+
+/// The selected frames decoded, in session order (decoding dominates loading: in parallel,
+/// rayon's collect keeping the order), each with its unsure band from `unsure`.
+fn decode_selected(
+    reader: &SessionReader,
+    selected: Vec<Selected>,
+    unsure: &BTreeMap<i64, Vec<RegionOfInterest>>,
+) -> Result<Vec<SessionFrame>, DatasetError> {
+    selected
         .into_par_iter()
         .map(|(meta, log_time_ns, topic, stamp_ns, regions)| {
             let frame = match reader.decode(&meta)?.map(|m| m.msg) {
@@ -221,10 +243,14 @@ pub fn load_session_with(
                 unsure: unsure.get(&stamp_ns).cloned().unwrap_or_default(),
             })
         })
-        .collect::<Result<Vec<_>, DatasetError>>()?;
-    let mut warnings = reader.warnings.clone();
+        .collect::<Result<Vec<_>, DatasetError>>()
+}
+
+/// One warning per label rectangle that is empty or reaches past its frame, naming where.
+fn rectangle_warnings(reader: &SessionReader, frames: &[SessionFrame]) -> Vec<String> {
+    let mut warnings = Vec::new();
     let labels_topic = reader.topics().labels.clone();
-    for f in &frames {
+    for f in frames {
         for r in f.regions.iter().flatten() {
             if let Some(why) = rectangle_problem(r, f.image.width, f.image.height) {
                 let at = reader.at(Some(&labels_topic), f.log_time_ns);
@@ -235,14 +261,7 @@ pub fn load_session_with(
             }
         }
     }
-    Ok(LoadedSession {
-        path: path.to_owned(),
-        sha256,
-        frames,
-        label_objects,
-        commands,
-        warnings,
-    })
+    warnings
 }
 
 /// What is wrong with a label rectangle on a `width` x `height` frame, if anything: empty,
@@ -469,43 +488,7 @@ pub fn build_examples(
     let per_frame: Vec<Vec<(SparseTiles, Vec<Option<bool>>)>> = frames
         .par_iter()
         .enumerate()
-        .map(|(fi, (img, regions, unsure))| {
-            // The bins of each light variant this frame's grids use, computed once.
-            let mut planes: Vec<Option<Vec<Vec<u16>>>> = vec![None; LIGHT_VARIANTS.len()];
-            for k in 0..offsets.len() {
-                let v = light_variant(params.augment, fi, k);
-                if planes[v].is_none() {
-                    planes[v] = Some(if v == 0 {
-                        bin_planes(img, feature)
-                    } else {
-                        bin_planes(&apply_gains(img, LIGHT_VARIANTS[v]), feature)
-                    });
-                }
-            }
-            offsets
-                .iter()
-                .enumerate()
-                .map(|(k, &(dx, dy))| {
-                    let planes = planes[light_variant(params.augment, fi, k)]
-                        .as_deref()
-                        .unwrap_or_default();
-                    let h = with_context(
-                        histograms_of_bins(
-                            planes,
-                            img.width,
-                            img.height,
-                            feature.bins(),
-                            t,
-                            dx,
-                            dy,
-                        ),
-                        params.context_tiles,
-                    );
-                    let labels = grid_labels(regions, unsure, (h.rows, h.cols), (dx, dy), t);
-                    (SparseTiles::from_dense(&h.counts, h.bins), labels)
-                })
-                .collect()
-        })
+        .map(|(fi, (img, regions, unsure))| frame_grids(img, regions, unsure, fi, &offsets, params))
         .collect();
     let denom = (t * t) as u16;
     let bins = feature_count(feature, params.context_tiles);
@@ -541,6 +524,47 @@ pub fn build_examples(
         aligned,
         labelled_frames: frames.len(),
     })
+}
+
+/// One labelled frame's examples on every shifted grid (`offsets`, in order): the sparse
+/// histograms of its tiles and their labels ([`grid_labels`]); `fi` picks the light variant
+/// of each grid.
+fn frame_grids(
+    img: &Rgb8,
+    regions: &[RegionOfInterest],
+    unsure: &[RegionOfInterest],
+    fi: usize,
+    offsets: &[(u32, u32)],
+    params: &ExampleParams,
+) -> Vec<(SparseTiles, Vec<Option<bool>>)> {
+    let (feature, t) = (params.features, params.tile_px);
+    // The bins of each light variant this frame's grids use, computed once.
+    let mut planes: Vec<Option<Vec<Vec<u16>>>> = vec![None; LIGHT_VARIANTS.len()];
+    for k in 0..offsets.len() {
+        let v = light_variant(params.augment, fi, k);
+        if planes[v].is_none() {
+            planes[v] = Some(if v == 0 {
+                bin_planes(img, feature)
+            } else {
+                bin_planes(&apply_gains(img, LIGHT_VARIANTS[v]), feature)
+            });
+        }
+    }
+    offsets
+        .iter()
+        .enumerate()
+        .map(|(k, &(dx, dy))| {
+            let planes = planes[light_variant(params.augment, fi, k)]
+                .as_deref()
+                .unwrap_or_default();
+            let h = with_context(
+                histograms_of_bins(planes, img.width, img.height, feature.bins(), t, dx, dy),
+                params.context_tiles,
+            );
+            let labels = grid_labels(regions, unsure, (h.rows, h.cols), (dx, dy), t);
+            (SparseTiles::from_dense(&h.counts, h.bins), labels)
+        })
+        .collect()
 }
 
 /// The labels of a grid of `rows` x `cols` tiles of side `t` starting at pixel (dx, dy), row
