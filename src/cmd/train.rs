@@ -413,11 +413,10 @@ fn second_round(
         match super::train_views::second_round_holds(&m, sessions, &rounds, topics)
             .context("train: replaying the sessions with the second round's model")?
         {
-            Ok(()) => {
-                lines.push(
-                    "the second round's model finds one object, its centre inside every labelled rectangle: it is written"
-                        .into(),
-                );
+            Ok(closer) => {
+                lines.push(format!(
+                    "the second round's model finds one object, its centre inside every labelled rectangle {closer}: it is written"
+                ));
                 Some((m, x, again))
             }
             Err(why) => {
