@@ -36,6 +36,9 @@ pub const MAX_VIEWS: usize = 16;
 /// and the poses disagree.
 pub const MIN_LABEL_IOU: f64 = 0.5;
 
+/// Where the first model located the object in a session that has a round (None: no round).
+pub type FirstCentre = Option<[f64; 3]>;
+
 /// The training sessions again, each with the frames its located object labels added (or
 /// as it was, when the round cannot label it), the centre the first model located in each
 /// that has a round (None: no round), and one line per session saying which.
@@ -44,7 +47,7 @@ pub fn more_views(
     sessions: &[LoadedSession],
     topics: &Topics,
     object: Option<&str>,
-) -> anyhow::Result<(Vec<LoadedSession>, Vec<Option<[f64; 3]>>, Vec<String>)> {
+) -> anyhow::Result<(Vec<LoadedSession>, Vec<FirstCentre>, Vec<String>)> {
     let mut out = Vec::with_capacity(sessions.len());
     let mut rounds = Vec::with_capacity(sessions.len());
     let mut lines = Vec::new();
@@ -86,7 +89,7 @@ pub fn more_views(
 pub fn second_round_holds(
     model: &Model,
     sessions: &[LoadedSession],
-    rounds: &[Option<[f64; 3]>],
+    rounds: &[FirstCentre],
     topics: &Topics,
 ) -> anyhow::Result<Result<String, String>> {
     let mut said = Vec::new();
