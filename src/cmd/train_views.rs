@@ -125,9 +125,10 @@ pub fn second_round_holds(
 /// `s`, said with both distances as a fraction of the object's size (Ok also when fewer than
 /// two rectangles have the object wholly in view: there is nothing to compare).
 ///
-/// Measured on tours taken as captures and trained on three of their own frames (docs/tree.md,
-/// "More views"): of the tours the round made worse against the 3D truth, this rejects half,
-/// and none of those it made better.
+/// Measured on sim and foreign tours taken as captures, trained on three of their own frames
+/// (docs/tree.md, "No farther from the labels"): it turns away 6 of the 13 rounds that made a
+/// tour worse against the 3D truth and none of the 30 that made one better; on their
+/// photometrically perturbed copy 3 of 12 and 4 of 36 (the three labels triangulate worse).
 fn closer_to_the_labels(
     outcome: &Outcome,
     s: &LoadedSession,
