@@ -292,34 +292,35 @@ pub fn find_objects_with_cells(grid: &Grid, params: &ObjectParams) -> Vec<(Objec
 /// the components of at least `min_cells`, each sorted, in the order of their first seed.
 fn label(grid: &Grid, states: &mut States, seeds: &[usize], min_cells: usize) -> Vec<Vec<usize>> {
     let spec = grid.spec;
+    let [nx, ny, nz] = spec.dims;
     let mut out = Vec::new();
-    let mut stack = Vec::new();
+    // Cells as (i, j, k), and the state blocks around the last one's block looked up once:
+    // this fill runs after every frame over every object's cells (a million for an object
+    // that fills a capture's grid), and a division and a block lookup per neighbour were
+    // most of it.
+    let mut stack: Vec<[usize; 3]> = Vec::new();
+    let mut near = NearBlocks::new(grid);
     for &seed in seeds {
         let [i, j, k] = spec.ijk(seed);
         match states.at(grid, i, j, k) {
             Some(st) if *st == GROW => *st = DONE,
             _ => continue,
         }
-        stack.push(seed);
+        stack.push([i, j, k]);
         let mut members = Vec::new();
-        let [nx, ny, nz] = spec.dims.map(|n| n as i64);
-        while let Some(idx) = stack.pop() {
-            members.push(idx);
-            let [i, j, k] = spec.ijk(idx).map(|x| x as i64);
-            // Explicit loops, not `neighbours`: this fill runs after every frame over every
-            // object's cells, and the iterator's closures cost the 1 000-stop replay 6 %.
-            for a in i - 1..=i + 1 {
-                for b in j - 1..=j + 1 {
-                    for c in k - 1..=k + 1 {
-                        if a < 0 || b < 0 || c < 0 || a >= nx || b >= ny || c >= nz {
+        while let Some([i, j, k]) = stack.pop() {
+            members.push(spec.index(i, j, k));
+            near.centre_on(grid, states, [i / BLOCK, j / BLOCK, k / BLOCK]);
+            for a in i.saturating_sub(1)..=(i + 1).min(nx - 1) {
+                for b in j.saturating_sub(1)..=(j + 1).min(ny - 1) {
+                    for c in k.saturating_sub(1)..=(k + 1).min(nz - 1) {
+                        let Some(s) = near.state_block([a / BLOCK, b / BLOCK, c / BLOCK]) else {
                             continue;
-                        }
-                        let (a, b, c) = (a as usize, b as usize, c as usize);
-                        if let Some(st) = states.at(grid, a, b, c)
-                            && *st == GROW
-                        {
+                        };
+                        let st = &mut states.blocks[s][cell_offset(a, b, c)];
+                        if *st == GROW {
                             *st = DONE;
-                            stack.push(spec.index(a, b, c));
+                            stack.push([a, b, c]);
                         }
                     }
                 }
@@ -331,6 +332,56 @@ fn label(grid: &Grid, states: &mut States, seeds: &[usize], min_cells: usize) ->
         }
     }
     out
+}
+
+/// The state blocks of the 3 x 3 x 3 blocks around one block (the flood fill's current
+/// cell's), looked up through the grid's block table when the fill moves to another block.
+struct NearBlocks {
+    /// Blocks along each axis.
+    dims: [usize; 3],
+    centre: Option<[usize; 3]>,
+    /// State block of each neighbour block, x-major, [`NO_STATE`] when none or off the grid.
+    of: [u32; 27],
+}
+
+impl NearBlocks {
+    fn new(grid: &Grid) -> Self {
+        Self {
+            dims: crate::fuse::grid::blocks::block_dims(grid.spec.dims),
+            centre: None,
+            of: [NO_STATE; 27],
+        }
+    }
+
+    fn centre_on(&mut self, grid: &Grid, states: &States, b: [usize; 3]) {
+        if self.centre == Some(b) {
+            return;
+        }
+        self.centre = Some(b);
+        let mut n = 0;
+        for x in [b[0].wrapping_sub(1), b[0], b[0] + 1] {
+            for y in [b[1].wrapping_sub(1), b[1], b[1] + 1] {
+                for z in [b[2].wrapping_sub(1), b[2], b[2] + 1] {
+                    // wrapping_sub(1) of 0 is past any grid's blocks: off the grid.
+                    self.of[n] = if x < self.dims[0] && y < self.dims[1] && z < self.dims[2] {
+                        states.of_slot[grid.slot_at(x * BLOCK, y * BLOCK, z * BLOCK)]
+                    } else {
+                        NO_STATE
+                    };
+                    n += 1;
+                }
+            }
+        }
+    }
+
+    /// The state block of block `b`, one of the centre's neighbours (or itself).
+    #[inline]
+    fn state_block(&self, b: [usize; 3]) -> Option<usize> {
+        let c = self.centre?;
+        let at = |a: usize| b[a] + 1 - c[a];
+        let s = self.of[(at(0) * 3 + at(1)) * 3 + at(2)];
+        (s != NO_STATE).then_some(s as usize)
+    }
 }
 
 /// The (up to 26) neighbours of cell `ijk` inside a grid of `dims`, in a fixed order.
