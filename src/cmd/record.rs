@@ -375,5 +375,11 @@ fn run_import(a: ImportArgs) -> anyhow::Result<()> {
             stats.distorted
         );
     }
+    if let Some((n, first, turn)) = &stats.exif_turned {
+        eprintln!(
+            "note: {n} of {} images carry an EXIF orientation that asks a viewer to turn them ({first}: {turn}); objloc uses the pixels as stored, as structure-from-motion tools do, so the labels and intrinsics must be for the stored images, not for ones a viewer turned",
+            stats.frames
+        );
+    }
     Ok(())
 }

@@ -27,6 +27,8 @@ mod tum;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
+use image::ImageDecoder;
+
 use thiserror::Error;
 
 pub use labels::{LabelRow, Labels, labels_from_masks, parse_labels};
@@ -139,7 +141,14 @@ pub struct ImportStats {
     /// Something about the poses a user should check, in words (the imported session is
     /// written all the same).
     pub pose_note: Option<String>,
+    /// Images whose EXIF orientation asks a viewer to turn or flip them, and the first's
+    /// name and what its tag asks (see [`exif_turn`]).
+    pub exif_turned: Option<ExifTurned>,
 }
+
+/// How many images carry an EXIF orientation other than "as stored", the first's name, and
+/// what its tag asks of a viewer.
+pub type ExifTurned = (usize, String, &'static str);
 
 /// One image to write: its file, stamp, camera pose and intrinsics.
 #[derive(Debug, Clone, PartialEq)]
@@ -292,7 +301,7 @@ pub fn import(
         // An error leaves nothing behind: no final file, no partial one.
         let _ = std::fs::remove_file(crate::io::output::partial_path(out));
     }
-    result.map(|(path, labelled)| ImportStats {
+    result.map(|(path, labelled, exif_turned)| ImportStats {
         path,
         frames: frames.len(),
         labelled,
@@ -302,6 +311,7 @@ pub fn import(
             .filter(|f| !f.intrinsics.distortion.is_zero())
             .count(),
         pose_note: axes_note(&frames),
+        exif_turned,
     })
 }
 
@@ -419,7 +429,7 @@ fn check_stamps(frames: &[Frame]) -> Result<(), ImportError> {
 /// The image file as the CompressedImage will carry it, with its format and size: a JPEG
 /// as it is (a camera's own bytes, a fraction of a PNG's size; it decodes to the same
 /// pixels every time), anything else decoded and written as an 8-bit RGB PNG.
-fn encoded_of(path: &Path) -> Result<(&'static str, Vec<u8>, u32, u32), ImportError> {
+fn encoded_of(path: &Path) -> Result<Encoded, ImportError> {
     let invalid = |what: String| {
         ImportError::File(CaptureError::Invalid {
             path: path.into(),
@@ -432,19 +442,48 @@ fn encoded_of(path: &Path) -> Result<(&'static str, Vec<u8>, u32, u32), ImportEr
             source,
         })
     })?;
-    let img = image::load_from_memory(&bytes)
-        .map_err(|e| invalid(format!("image does not decode: {e}")))?;
+    let undecodable = |e: image::ImageError| invalid(format!("image does not decode: {e}"));
+    let mut decoder = image::ImageReader::new(std::io::Cursor::new(&bytes))
+        .with_guessed_format()
+        .map_err(|e| invalid(format!("image does not decode: {e}")))?
+        .into_decoder()
+        .map_err(undecodable)?;
+    let turn = exif_turn(decoder.orientation().ok());
+    let img = image::DynamicImage::from_decoder(decoder).map_err(undecodable)?;
     let (w, h) = (img.width(), img.height());
     if bytes.starts_with(&[0xFF, 0xD8, 0xFF]) {
         if !crate::io::session::jpeg_is_complete(&bytes) {
             let cut = crate::io::session::FrameError::TruncatedJpeg { bytes: bytes.len() };
             return Err(invalid(cut.to_string()));
         }
-        return Ok(("jpeg", bytes, w, h));
+        return Ok(("jpeg", bytes, w, h, turn));
     }
     let rgb = img.into_rgb8();
     let png = crate::types::image::encode_png(w, h, rgb.as_raw()).map_err(invalid)?;
-    Ok(("png", png, w, h))
+    Ok(("png", png, w, h, turn))
+}
+
+/// An image file as a frame carries it: format, bytes, width and height as stored, and what
+/// its EXIF orientation asks of a viewer ([`exif_turn`]).
+type Encoded = (&'static str, Vec<u8>, u32, u32, Option<&'static str>);
+
+/// What an EXIF orientation tag asks a viewer to do to the stored pixels, or None when
+/// nothing (no tag, or "as stored"). objloc, like structure-from-motion tools (COLMAP reads
+/// pixels as stored, so that one camera's intrinsics hold for every frame), uses the stored
+/// pixels: poses, intrinsics and labels must all refer to them, and a rectangle drawn in a
+/// viewer that turned the photo would not.
+fn exif_turn(orientation: Option<image::metadata::Orientation>) -> Option<&'static str> {
+    use image::metadata::Orientation as O;
+    match orientation? {
+        O::NoTransforms => None,
+        O::Rotate90 => Some("turn 90 degrees clockwise"),
+        O::Rotate180 => Some("turn 180 degrees"),
+        O::Rotate270 => Some("turn 90 degrees counter-clockwise"),
+        O::FlipHorizontal => Some("mirror left to right"),
+        O::FlipVertical => Some("mirror top to bottom"),
+        O::Rotate90FlipH => Some("turn 90 degrees clockwise and mirror"),
+        O::Rotate270FlipH => Some("turn 90 degrees counter-clockwise and mirror"),
+    }
 }
 
 fn write_session(
@@ -453,8 +492,9 @@ fn write_session(
     frames: &[Frame],
     labels: Option<&(PathBuf, Labels)>,
     progress: &mut dyn FnMut(usize, usize),
-) -> Result<(PathBuf, usize), ImportError> {
+) -> Result<(PathBuf, usize, Option<ExifTurned>), ImportError> {
     let topics = Topics::default();
+    let mut turned: Option<ExifTurned> = None;
     let mut writer = SessionWriter::create(out)?;
     let first_ns = frames[0].stamp_ns;
     let tf = TfMessage {
@@ -468,7 +508,11 @@ fn write_session(
     writer.write(&topics.tf_static, first_ns, &tf)?;
     let mut labelled = 0;
     for (k, f) in frames.iter().enumerate() {
-        let (format, data, w, h) = encoded_of(&f.path)?;
+        let (format, data, w, h, turn) = encoded_of(&f.path)?;
+        if let Some(turn) = turn {
+            let first = turned.get_or_insert_with(|| (0, name_of(&f.path), turn));
+            first.0 += 1;
+        }
         let c = &f.intrinsics.camera;
         if (w, h) != (c.width, c.height) {
             return Err(ImportError::File(CaptureError::Invalid {
@@ -512,7 +556,7 @@ fn write_session(
         progress(k + 1, frames.len());
     }
     let path = writer.finish()?;
-    Ok((path, labelled))
+    Ok((path, labelled, turned))
 }
 
 /// CameraInfo of one frame: K, and the distortion as `plumb_bob` d (empty when none).
@@ -567,6 +611,45 @@ fn frame_labels(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A 16 x 8 JPEG, with an EXIF segment carrying orientation `tag` when given.
+    fn jpeg_with_orientation(tag: Option<u8>) -> Vec<u8> {
+        let mut bytes = Vec::new();
+        let pixels: Vec<u8> = (0..16 * 8 * 3).map(|i| (i * 7 % 256) as u8).collect();
+        image::codecs::jpeg::JpegEncoder::new(&mut bytes)
+            .encode(&pixels, 16, 8, image::ExtendedColorType::Rgb8)
+            .unwrap();
+        let Some(tag) = tag else { return bytes };
+        // APP1: "Exif\0\0", a big-endian TIFF header, one IFD entry 0x0112 (SHORT, 1 value).
+        let mut app1 = b"Exif\0\0MM\0\x2a\0\0\0\x08\0\x01\x01\x12\0\x03\0\0\0\x01\0".to_vec();
+        app1.extend_from_slice(&[tag, 0, 0, 0, 0, 0, 0]);
+        let len = (app1.len() + 2) as u16;
+        let mut out = bytes[..2].to_vec();
+        out.extend_from_slice(&[0xFF, 0xE1]);
+        out.extend_from_slice(&len.to_be_bytes());
+        out.extend_from_slice(&app1);
+        out.extend_from_slice(&bytes[2..]);
+        out
+    }
+
+    /// A phone photo's EXIF orientation is read and said; its pixels are kept as stored.
+    #[test]
+    fn an_exif_orientation_is_read_and_the_pixels_kept_as_stored() {
+        let dir = tempfile::tempdir().unwrap();
+        for (tag, turn) in [
+            (None, None),
+            (Some(1), None),
+            (Some(6), Some("turn 90 degrees clockwise")),
+            (Some(3), Some("turn 180 degrees")),
+        ] {
+            let path = dir.path().join("p.jpg");
+            let bytes = jpeg_with_orientation(tag);
+            std::fs::write(&path, &bytes).unwrap();
+            let (format, data, w, h, got) = encoded_of(&path).unwrap();
+            assert_eq!((format, w, h, got), ("jpeg", 16, 8, turn), "tag {tag:?}");
+            assert_eq!(data, bytes);
+        }
+    }
 
     #[test]
     fn names_sort_with_numbers_as_numbers() {
