@@ -75,25 +75,38 @@ pub fn parse_labels(path: &Path, text: &str) -> Result<Labels, ImportError> {
     Ok(out)
 }
 
-/// x, y, width, height in whole pixels, or all four empty (a background row).
+/// x, y, width, height in pixels, or all four empty (a background row). Labelling tools
+/// write sub-pixel boxes (`158.37`): such a box becomes the smallest whole-pixel box holding
+/// it, as a mask's does; whole numbers are taken as they are.
 fn parse_box(fields: &[&str]) -> Result<Option<RegionOfInterest>, String> {
     if fields.iter().all(|f| f.is_empty()) {
         return Ok(None);
     }
-    let mut v = [0u32; 4];
+    let mut v = [0.0f64; 4];
     for (k, f) in fields.iter().enumerate() {
         v[k] = f
-            .parse()
-            .map_err(|_| format!("column {} ({f:?}) is not a whole number of pixels", k + 2))?;
+            .parse::<f64>()
+            .ok()
+            .filter(|x| x.is_finite())
+            .ok_or_else(|| format!("column {} ({f:?}) is not a number of pixels", k + 2))?;
+        if v[k] < 0.0 || v[k] > f64::from(u32::MAX) {
+            return Err(format!(
+                "column {} ({f:?}) is not a number of pixels from 0 to {}",
+                k + 2,
+                u32::MAX
+            ));
+        }
     }
-    if v[2] == 0 || v[3] == 0 {
-        return Err(format!("box {} x {} is empty", v[2], v[3]));
+    if v[2] == 0.0 || v[3] == 0.0 {
+        return Err(format!("box {} x {} is empty", fields[2], fields[3]));
     }
+    // Whole numbers give back their own values (exact in f64); the `as` casts saturate.
+    let (x0, y0) = (v[0].floor(), v[1].floor());
     Ok(Some(RegionOfInterest {
-        x_offset: v[0],
-        y_offset: v[1],
-        width: v[2],
-        height: v[3],
+        x_offset: x0 as u32,
+        y_offset: y0 as u32,
+        width: ((v[0] + v[2]).ceil() - x0) as u32,
+        height: ((v[1] + v[3]).ceil() - y0) as u32,
         do_rectify: false,
     }))
 }
@@ -229,6 +242,27 @@ mod tests {
         );
         let e = parse_labels(p, "a.png,1,2,0,4\n").unwrap_err();
         assert_eq!(e.to_string(), "l.csv:1: box 0 x 4 is empty");
+        // A labelling tool's sub-pixel box: the whole-pixel box holding it.
+        let l = parse_labels(p, "a.png,10.6,2.25,30.1,3.5\n").unwrap();
+        let r = l["a.png"][0].roi.unwrap();
+        assert_eq!((r.x_offset, r.y_offset, r.width, r.height), (10, 2, 31, 4));
+        for (row, what) in [
+            (
+                "a.png,-1,2,3,4",
+                "column 2 (\"-1\") is not a number of pixels from 0 to 4294967295",
+            ),
+            (
+                "a.png,1,x,3,4",
+                "column 3 (\"x\") is not a number of pixels",
+            ),
+            (
+                "a.png,1,2,NaN,4",
+                "column 4 (\"NaN\") is not a number of pixels",
+            ),
+        ] {
+            let e = parse_labels(p, row).unwrap_err().to_string();
+            assert!(e.starts_with(&format!("l.csv:1: {what}")), "{e}");
+        }
         let e = parse_labels(p, "a.png,1,2,3\n").unwrap_err();
         assert_eq!(
             e.to_string(),

@@ -365,17 +365,41 @@ fn read_labels(
         (None, None) => return Ok(None),
     };
     let names: Vec<String> = frames.iter().map(|f| name_of(&f.path)).collect();
-    if let Some((name, rows)) = labels.1.iter().find(|(n, _)| !names.contains(n)) {
-        return Err(ImportError::File(CaptureError::Line {
-            path: labels.0.clone(),
-            line: rows.first().map_or(0, |r| r.line),
-            what: format!(
-                "image {name:?} is not in {}",
-                images_place(&opts.poses).display()
-            ),
-        }));
+    let mut resolved = Labels::new();
+    for (name, rows) in labels.1 {
+        let Some(frame) = frame_named(&names, &name) else {
+            return Err(ImportError::File(CaptureError::Line {
+                path: labels.0.clone(),
+                line: rows.first().map_or(0, |r| r.line),
+                what: format!(
+                    "image {name:?} is not in {}",
+                    images_place(&opts.poses).display()
+                ),
+            }));
+        };
+        resolved.entry(frame.to_owned()).or_default().extend(rows);
     }
-    Ok(Some(labels))
+    // Rows of one image named two ways (`rgb/1.png`, `1.png`) in the file's order.
+    for rows in resolved.values_mut() {
+        rows.sort_by_key(|r| r.line);
+    }
+    Ok(Some((labels.0, resolved)))
+}
+
+/// The imported image a labels row names: its file name, or a path ending in it (`rgb/1.png`,
+/// as TUM RGB-D's lists name frames), or its name without the extension when one image alone
+/// has that stem.
+fn frame_named<'a>(names: &'a [String], label: &str) -> Option<&'a str> {
+    let last = label.rsplit(['/', '\\']).next().unwrap_or(label);
+    if let Some(n) = names.iter().find(|n| *n == label || *n == last) {
+        return Some(n);
+    }
+    let stem = |n: &'a String| Path::new(n).file_stem().and_then(|s| s.to_str());
+    let mut same_stem = names.iter().filter(|n| stem(n) == Some(last));
+    match (same_stem.next(), same_stem.next()) {
+        (Some(n), None) => Some(n),
+        _ => None,
+    }
 }
 
 /// Where the imported images are: their folder, or the pose file that names them.
@@ -649,6 +673,29 @@ mod tests {
             assert_eq!((format, w, h, got), ("jpeg", 16, 8, turn), "tag {tag:?}");
             assert_eq!(data, bytes);
         }
+    }
+
+    /// A labels row names its image by file name, by a path ending in it, or by its name
+    /// without the extension when that is unique; nothing else.
+    #[test]
+    fn a_label_names_its_image_by_name_path_or_unique_stem() {
+        let names: Vec<String> = ["1305031102.175304.png", "a.jpg", "b.jpg", "b.png"]
+            .into_iter()
+            .map(String::from)
+            .collect();
+        let found = |l: &str| frame_named(&names, l);
+        assert_eq!(found("a.jpg"), Some("a.jpg"));
+        assert_eq!(
+            found("rgb/1305031102.175304.png"),
+            Some("1305031102.175304.png")
+        );
+        assert_eq!(found("C:\\shots\\a.jpg"), Some("a.jpg"));
+        assert_eq!(found("1305031102.175304"), Some("1305031102.175304.png"));
+        assert_eq!(found("./a"), Some("a.jpg"));
+        // Two images share the stem b; a.png is another file than a.jpg.
+        assert_eq!(found("b"), None);
+        assert_eq!(found("a.png"), None);
+        assert_eq!(found("c.jpg"), None);
     }
 
     #[test]
