@@ -105,7 +105,11 @@ pub fn parse_trajectory(path: &Path, text: &str) -> Result<Vec<TrajectoryPose>, 
             continue;
         }
         let err = |what: String| line_error(path, line, what);
-        let fields: Vec<&str> = content.split_whitespace().collect();
+        // Spaces as TUM writes them; commas as some exporters do.
+        let fields: Vec<&str> = content
+            .split(|c: char| c.is_whitespace() || c == ',')
+            .filter(|f| !f.is_empty())
+            .collect();
         if fields.len() != 8 {
             return Err(err(format!(
                 "expected 8 fields `timestamp tx ty tz qx qy qz qw`, found {}",
@@ -355,5 +359,8 @@ mod tests {
         assert!((mid.translation.x - 0.5).abs() < 1e-12);
         assert!(pose_at(&t, 2_040_000_000).is_ok());
         assert!(pose_at(&t, 2_060_000_000).is_err());
+        // The same trajectory written with commas reads the same.
+        let c = parse_trajectory(p, "1.0,0,0,0,0,0,0,1\n2.0, 2, 0, 0, 0, 0, 0, 1\n").unwrap();
+        assert_eq!(c, t);
     }
 }
