@@ -38,10 +38,7 @@ pub fn parse_labels(path: &Path, text: &str) -> Result<Labels, ImportError> {
     for (i, raw) in text.lines().enumerate() {
         let line = i + 1;
         let content = raw.trim();
-        if content.is_empty()
-            || content.starts_with('#')
-            || (line == 1 && content.starts_with("image"))
-        {
+        if content.is_empty() || content.starts_with('#') || (line == 1 && is_header(content)) {
             continue;
         }
         let err = |what: String| line_error(path, line, what);
@@ -73,6 +70,14 @@ pub fn parse_labels(path: &Path, text: &str) -> Result<Labels, ImportError> {
         }));
     }
     Ok(out)
+}
+
+/// Whether the first line is a header: its second column is a word (`image,x,...` as objloc
+/// writes it, `filename,xmin,...` from another tool), not a number or empty as a row's is
+/// (`image_001.png,10,...` is a row).
+fn is_header(content: &str) -> bool {
+    let x = content.split(',').nth(1).map(str::trim).unwrap_or("");
+    x.chars().next().is_some_and(char::is_alphabetic)
 }
 
 /// x, y, width, height in pixels, or all four empty (a background row). Labelling tools
@@ -242,6 +247,12 @@ mod tests {
         );
         let e = parse_labels(p, "a.png,1,2,0,4\n").unwrap_err();
         assert_eq!(e.to_string(), "l.csv:1: box 0 x 4 is empty");
+        // Another tool's header is a header too; a first row whose image is named image_...
+        // is a row.
+        let l = parse_labels(p, "filename,xmin,ymin,w,h\na.png,1,2,3,4\n").unwrap();
+        assert_eq!(l.len(), 1);
+        let l = parse_labels(p, "image_1.png,1,2,3,4\nimage_2.png,,,,\n").unwrap();
+        assert_eq!(l.len(), 2);
         // A labelling tool's sub-pixel box: the whole-pixel box holding it.
         let l = parse_labels(p, "a.png,10.6,2.25,30.1,3.5\n").unwrap();
         let r = l["a.png"][0].roi.unwrap();
