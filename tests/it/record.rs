@@ -469,6 +469,87 @@ fn import_two_frames(
     (images, traj, out, run)
 }
 
+/// What real captures bring to `record import`, as phones and labelling tools write it:
+/// JPEGs with an EXIF orientation (said on stderr; the pixels used as stored), a TUM
+/// trajectory with commas, another tool's CSV header, rows naming their image by a path or
+/// its stem, and sub-pixel boxes (each the whole-pixel box holding it).
+#[test]
+fn import_takes_a_capture_as_phones_and_labelling_tools_write_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let rgb = dir.path().join("rgb");
+    std::fs::create_dir_all(&rgb).unwrap();
+    // APP1 "Exif", big-endian TIFF, one IFD entry: orientation (0x0112, SHORT) = 6.
+    let app1 = b"Exif\0\0MM\0\x2a\0\0\0\x08\0\x01\x01\x12\0\x03\0\0\0\x01\0\x06\0\0\0\0\0\0";
+    for name in ["100.0.jpg", "100.5.jpg", "101.0.jpg"] {
+        let mut jpeg = Vec::new();
+        let pixels = vec![128u8; 32 * 24 * 3];
+        image::codecs::jpeg::JpegEncoder::new(&mut jpeg)
+            .encode(&pixels, 32, 24, image::ExtendedColorType::Rgb8)
+            .unwrap();
+        let mut bytes = jpeg[..2].to_vec();
+        bytes.extend_from_slice(&[0xFF, 0xE1]);
+        bytes.extend_from_slice(&(app1.len() as u16 + 2).to_be_bytes());
+        bytes.extend_from_slice(app1);
+        bytes.extend_from_slice(&jpeg[2..]);
+        std::fs::write(rgb.join(name), bytes).unwrap();
+    }
+    let traj = dir.path().join("traj.csv");
+    std::fs::write(&traj, "100.0,0,0,0,0,0,0,1\n101.0,1,0,0,0,0,0,1\n").unwrap();
+    let csv = dir.path().join("labels.csv");
+    std::fs::write(
+        &csv,
+        "filename,xmin,ymin,w,h\nrgb/100.0.jpg,2.5,3.25,10,6.5\n101.0,1,1,4,4\n",
+    )
+    .unwrap();
+    let out = dir.path().join("cap.mcap");
+    let run = objloc(
+        &[
+            "record",
+            "import",
+            "--images",
+            p(&rgb),
+            "--trajectory",
+            p(&traj),
+            "--camera",
+            "30,30,16,12",
+            "--labels",
+            p(&csv),
+            "-o",
+            p(&out),
+        ],
+        &[],
+    );
+    let said = ok(&run);
+    assert!(
+        said.contains("(3 frames, 2 labelled; matched by file-name timestamps)"),
+        "{said}"
+    );
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(
+        err.contains("note: 3 of 3 images carry an EXIF orientation that asks a viewer to turn them (100.0.jpg: turn 90 degrees clockwise); objloc uses the pixels as stored"),
+        "{err}"
+    );
+    let reader = SessionReader::open(&out, Topics::default()).unwrap();
+    let mut boxes = Vec::new();
+    for m in reader.messages() {
+        if let SessionMsg::Label(l) = m.unwrap().msg {
+            for r in l.regions {
+                boxes.push((
+                    l.header.stamp_ns,
+                    [r.x_offset, r.y_offset, r.width, r.height],
+                ));
+            }
+        }
+    }
+    assert_eq!(
+        boxes,
+        [
+            (100_000_000_000, [2, 3, 11, 7]),
+            (101_000_000_000, [1, 1, 4, 4])
+        ]
+    );
+}
+
 /// `inspect` counts frames, as `record import` does: two objects boxed in one frame are one
 /// labelled frame (it counted the two label messages), a frame with only empty labels a
 /// background frame.
