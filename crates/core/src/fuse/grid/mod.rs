@@ -314,8 +314,17 @@ pub fn logit(p: f64) -> f64 {
 
 /// Probability 1 / (1 + e^-l) of log-odds `l`, in [0, 1]; the inverse of [`logit`].
 pub fn sigmoid(l: f64) -> f64 {
+    // Above 38, exp(-l) < 2^-54 and 1 + exp(-l) rounds to 1: the formula gives exactly 1.0,
+    // without the exp (cells of an object that fills a capture's grid sit far above it, and
+    // an object's summary takes this of each of its cells after every frame).
+    if l >= SIGMOID_ONE_FROM {
+        return 1.0;
+    }
     1.0 / (1.0 + (-l).exp())
 }
+
+/// Log-odds from which [`sigmoid`]'s formula rounds to exactly 1.0 in f64 (with margin).
+const SIGMOID_ONE_FROM: f64 = 40.0;
 
 /// Depth (metres along the optical axis) beyond which a tile's footprint, `depth * tile_px /
 /// f` with the smaller focal length, exceeds `footprint_voxels` cells: where a frame's update

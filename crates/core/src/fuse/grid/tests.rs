@@ -611,3 +611,18 @@ fn two_views_intersect_at_the_point() {
         assert!(d < 0.3, "{c:?} is {d} m from the point");
     }
 }
+
+/// The shortcut above SIGMOID_ONE_FROM gives what the formula gives, bit for bit: from 38 on
+/// the formula is exactly 1.0.
+#[test]
+fn sigmoid_is_its_formula_bit_for_bit_about_the_shortcut() {
+    let formula = |l: f64| 1.0 / (1.0 + (-l).exp());
+    for l in [38.0, 39.5, 39.999, 40.0, 40.001, 55.0, 1e6, f64::INFINITY] {
+        assert_eq!(formula(l).to_bits(), 1.0f64.to_bits(), "{l}");
+        assert_eq!(sigmoid(l).to_bits(), formula(l).to_bits(), "{l}");
+    }
+    for l in [-40.0, -1.0, 0.0, 1.0, 20.0, 36.0] {
+        assert_eq!(sigmoid(l).to_bits(), formula(l).to_bits(), "{l}");
+    }
+    assert!(sigmoid(f64::NAN).is_nan());
+}
