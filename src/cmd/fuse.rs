@@ -319,11 +319,7 @@ pub fn fuse(
         }
     };
     if let Some(p) = stream.finish()? {
-        say!(
-            "rerun recording: {} (open it with: {})",
-            p.display(),
-            viz::open_command(&p)
-        );
+        super::say_recording(&p);
     }
     let t_replay = t1.elapsed();
     let mut timing = BTreeMap::new();

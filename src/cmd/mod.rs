@@ -277,6 +277,15 @@ pub fn main(cli: Cli) -> std::process::ExitCode {
     }
 }
 
+/// Says where a command's Rerun recording went and how to open it.
+pub(crate) fn say_recording(path: &std::path::Path) {
+    say!(
+        "rerun recording: {} (open it with: {})",
+        path.display(),
+        crate::viz::open_command(path)
+    );
+}
+
 /// Object names for a message: `apple, banana`, or `none`.
 pub(crate) fn names_or_none(names: &std::collections::BTreeSet<String>) -> String {
     if names.is_empty() {

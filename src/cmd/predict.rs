@@ -146,11 +146,7 @@ fn log_to_rerun(
         )?;
     }
     if let Some(p) = stream.finish()? {
-        say!(
-            "rerun recording: {} (open it with: {})",
-            p.display(),
-            crate::viz::open_command(&p)
-        );
+        super::say_recording(&p);
     }
     Ok(())
 }

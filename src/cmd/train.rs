@@ -260,11 +260,7 @@ fn log_to_rerun(
         crate::viz::train::log_training_frames(&stream.rec, model, sessions, labelled)?;
     }
     if let Some(p) = stream.finish()? {
-        say!(
-            "rerun recording: {} (open it with: {})",
-            p.display(),
-            crate::viz::open_command(&p)
-        );
+        super::say_recording(&p);
     }
     Ok(())
 }
