@@ -114,8 +114,9 @@ struct ImportArgs {
     /// With --idr: the images are this region of the calibrated image, scaled to their size.
     #[arg(long, value_name = "X,Y,W,H", requires = "idr")]
     crop: Option<String>,
-    /// CSV `image,x,y,width,height[,object]`; a row with an empty box marks a background
-    /// frame; several rows per image for several objects.
+    /// CSV `image,x,y,width,height[,object]`, or the columns a header names
+    /// (`filename,xmin,ymin,xmax,ymax,class` and the like: docs/realdata.md); a row with an
+    /// empty box marks a background frame; several rows per image for several objects.
     #[arg(long, value_name = "FILE", conflicts_with = "masks")]
     labels: Option<PathBuf>,
     /// Folder of masks (`<stem>.png`, `<stem>-...png`, `<stem>_...png` for image `<stem>.*`):

@@ -162,13 +162,16 @@ fn closer_to_the_labels(
     let (Some(before), Some(after)) = (off(first), off(outcome.objects[0].centroid_m)) else {
         return Ok("(fewer than two of them hold the object wholly in view: no distance from where they put it to compare)".into());
     };
+    // Two decimals: a second model a hair farther must not read as "1.2 %, farther than
+    // 1.2 %".
+    let at = s.path.display();
     if after <= before {
         Ok(format!(
-            "and no farther from where they put it ({after:.1} % of the object's size, the first model's {before:.1} %)"
+            "and no farther from where they put it in {at} ({after:.2} % of the object's size, the first model's {before:.2} %)"
         ))
     } else {
         Err(format!(
-            "with its model the located centre is {after:.1} % of the object's size from where the labelled rectangles put it, farther than the first model's {before:.1} %"
+            "with its model the located centre is {after:.2} % of the object's size from where the labelled rectangles put it, farther than the first model's {before:.2} %"
         ))
     }
 }

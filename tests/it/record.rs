@@ -502,23 +502,21 @@ fn import_takes_a_capture_as_phones_and_labelling_tools_write_it() {
     )
     .unwrap();
     let out = dir.path().join("cap.mcap");
-    let run = objloc(
-        &[
-            "record",
-            "import",
-            "--images",
-            p(&rgb),
-            "--trajectory",
-            p(&traj),
-            "--camera",
-            "30,30,16,12",
-            "--labels",
-            p(&csv),
-            "-o",
-            p(&out),
-        ],
-        &[],
-    );
+    let run_args = vec![
+        "record",
+        "import",
+        "--images",
+        p(&rgb),
+        "--trajectory",
+        p(&traj),
+        "--camera",
+        "30,30,16,12",
+        "--labels",
+        p(&csv),
+        "-o",
+        p(&out),
+    ];
+    let run = objloc(&run_args, &[]);
     let said = ok(&run);
     assert!(
         said.contains("(3 frames, 2 labelled; matched by file-name timestamps)"),
@@ -529,7 +527,27 @@ fn import_takes_a_capture_as_phones_and_labelling_tools_write_it() {
         err.contains("note: 3 of 3 images carry an EXIF orientation that asks a viewer to turn them (100.0.jpg: turn 90 degrees clockwise); objloc uses the pixels as stored"),
         "{err}"
     );
-    let reader = SessionReader::open(&out, Topics::default()).unwrap();
+    let expected = [
+        (100_000_000_000, [2, 3, 11, 7]),
+        (101_000_000_000, [1, 1, 4, 4]),
+    ];
+    assert_eq!(boxes_of(&out), expected);
+    // The same boxes as corners under another tool's header names, a name in quotes.
+    std::fs::write(
+        &csv,
+        "Image_Name,x_min,y_min,x_max,y_max,class\n\"rgb/100.0.jpg\",2.5,3.25,12.5,9.75,cup\n101.0,1,1,5,5,cup\n",
+    )
+    .unwrap();
+    let corners = dir.path().join("corners.mcap");
+    let mut args = run_args.clone();
+    *args.last_mut().unwrap() = p(&corners);
+    ok(&objloc(&args, &[]));
+    assert_eq!(boxes_of(&corners), expected);
+}
+
+/// Every label rectangle of a session: (stamp, [x, y, width, height]).
+fn boxes_of(session: &Path) -> Vec<(i64, [u32; 4])> {
+    let reader = SessionReader::open(session, Topics::default()).unwrap();
     let mut boxes = Vec::new();
     for m in reader.messages() {
         if let SessionMsg::Label(l) = m.unwrap().msg {
@@ -541,13 +559,7 @@ fn import_takes_a_capture_as_phones_and_labelling_tools_write_it() {
             }
         }
     }
-    assert_eq!(
-        boxes,
-        [
-            (100_000_000_000, [2, 3, 11, 7]),
-            (101_000_000_000, [1, 1, 4, 4])
-        ]
-    );
+    boxes
 }
 
 /// `inspect` counts frames, as `record import` does: two objects boxed in one frame are one
@@ -1187,7 +1199,7 @@ fn train_labels_a_captures_other_frames_by_the_object_it_locates() {
     // labelled rectangles put the chair (`eval`'s score of each, as a percentage of its size).
     let kept = text
         .lines()
-        .find(|l| l.starts_with("the second round's model finds one object, its centre inside every labelled rectangle and no farther from where they put it ("))
+        .find(|l| l.starts_with("the second round's model finds one object, its centre inside every labelled rectangle and no farther from where they put it in "))
         .unwrap_or_else(|| panic!("{text}"));
     assert!(kept.ends_with("): it is written"), "{kept}");
     let percents: Vec<f64> = kept

@@ -80,6 +80,26 @@ mod tests {
         }
     }
 
+    /// Values up to `usize::MAX` need every digit, the last pass a partial one (shift 55).
+    #[test]
+    fn values_up_to_the_largest_sort_as_sort_unstable_does() {
+        let mut a: Vec<usize> = scrambled(RADIX_MIN_LEN + 100, 1 << 40)
+            .into_iter()
+            .enumerate()
+            .map(|(i, v)| match i % 4 {
+                0 => usize::MAX - v,
+                1 => v << 23,
+                _ => v,
+            })
+            .collect();
+        a[7] = usize::MAX;
+        let mut b = a.clone();
+        sort_indices(&mut a);
+        b.sort_unstable();
+        assert_eq!(a, b);
+        assert_eq!(a.last(), Some(&usize::MAX));
+    }
+
     #[test]
     fn short_and_zero_inputs() {
         let mut v = vec![3, 1, 2];

@@ -1,6 +1,7 @@
 //! Labels of an imported sequence: a CSV of rectangles (`image,x,y,width,height[,object]`,
-//! several rows per image for several objects or rectangles) or a folder of masks, each turned
-//! into the rectangle around its foreground.
+//! or the columns a header names, `filename,xmin,ymin,xmax,ymax,class` and the like; several
+//! rows per image for several objects or rectangles) or a folder of masks, each turned into
+//! the rectangle around its foreground.
 //!
 //! Invariants: rows keep their file order per image; a row with an empty box marks a
 //! background frame; an empty object column means the importer's `--object`; every error
@@ -19,45 +20,147 @@ use crate::io::msgs::RegionOfInterest;
 pub struct LabelRow {
     /// 1-based line of the CSV (0 for a rectangle from a mask).
     pub line: usize,
-    /// Object name from the CSV's sixth column, if it has one.
+    /// Object name from the CSV's object column, if it has one.
     pub object: Option<String>,
     /// Rectangle in pixels of the image file, or None for a background row.
     pub roi: Option<RegionOfInterest>,
 }
 
-/// Label rows by image file name, in file order. A first line starting with `image` is a
-/// header.
+/// Label rows by image as the rows name it (`read_labels` resolves the names to the imported
+/// files), in file order.
 pub type Labels = BTreeMap<String, Vec<LabelRow>>;
 
-/// Parses a labels CSV: `image,x,y,width,height` with an optional sixth `object` column.
+/// Header names of each column a labels CSV may have (lower case; `_`, `-` and spaces are
+/// ignored, so `file_name` is `filename`). Labelling tools and dataset converters name the
+/// same things differently; a header naming none of a role's names is refused.
+const IMAGE_NAMES: &[&str] = &[
+    "image",
+    "imagename",
+    "imagepath",
+    "img",
+    "filename",
+    "file",
+    "path",
+    "frame",
+];
+const OBJECT_NAMES: &[&str] = &[
+    "object",
+    "objectname",
+    "class",
+    "classname",
+    "label",
+    "labelname",
+    "category",
+    "categoryname",
+    "name",
+];
+const X_NAMES: &[&str] = &["x", "xmin", "left", "x1", "bboxx"];
+const Y_NAMES: &[&str] = &["y", "ymin", "top", "y1", "bboxy"];
+const WIDTH_NAMES: &[&str] = &["width", "w", "bboxwidth", "boxwidth"];
+const HEIGHT_NAMES: &[&str] = &["height", "h", "bboxheight", "boxheight"];
+const XMAX_NAMES: &[&str] = &["xmax", "right", "x2"];
+const YMAX_NAMES: &[&str] = &["ymax", "bottom", "y2"];
+
+/// Where a row's values are: objloc's own order (`image,x,y,width,height[,object]`), or the
+/// columns a header names.
+#[derive(Debug, Clone, PartialEq)]
+struct Columns {
+    image: usize,
+    object: Option<usize>,
+    /// Column indices of x, y and then width, height (`corners` false) or the right and
+    /// bottom edges (`corners` true: `xmin,ymin,xmax,ymax`).
+    edges: [usize; 4],
+    corners: bool,
+    /// The header's column count (None: objloc's order, 5 or 6 columns).
+    count: Option<usize>,
+}
+
+impl Columns {
+    const OBJLOC: Columns = Columns {
+        image: 0,
+        object: Some(5),
+        edges: [1, 2, 3, 4],
+        corners: false,
+        count: None,
+    };
+
+    /// The columns a header names; an error saying what it lacks. Where a header names both
+    /// corners and a width and height (TensorFlow's `filename,width,height,class,xmin,...`,
+    /// whose width and height are the image's), the corners are the box.
+    fn of_header(fields: &[&str]) -> Result<Columns, String> {
+        let names: Vec<String> = fields
+            .iter()
+            .map(|f| f.to_lowercase().replace(['_', '-', ' '], ""))
+            .collect();
+        // objloc's own header: its rows may have the object column or not, as before.
+        let own = ["image", "x", "y", "width", "height", "object"];
+        if (names.len() == 5 || names.len() == 6) && names.iter().zip(own).all(|(n, o)| n == o) {
+            return Ok(Columns::OBJLOC);
+        }
+        let find = |wanted: &[&str]| names.iter().position(|n| wanted.contains(&n.as_str()));
+        let found = |role: &str, wanted: &[&str]| {
+            find(wanted).ok_or_else(|| {
+                format!(
+                    "the header ({}) names no {role} column (one of: {})",
+                    fields.join(","),
+                    wanted.join(", ")
+                )
+            })
+        };
+        let image = found("image", IMAGE_NAMES)?;
+        let x = found("x (left edge)", X_NAMES)?;
+        let y = found("y (top edge)", Y_NAMES)?;
+        let (corners, right, bottom) = match (find(XMAX_NAMES), find(YMAX_NAMES)) {
+            (Some(r), Some(b)) => (true, r, b),
+            _ => (
+                false,
+                found("width (or xmax)", WIDTH_NAMES)?,
+                found("height (or ymax)", HEIGHT_NAMES)?,
+            ),
+        };
+        let object = find(OBJECT_NAMES).filter(|&o| o != image);
+        Ok(Columns {
+            image,
+            object,
+            edges: [x, y, right, bottom],
+            corners,
+            count: Some(fields.len()),
+        })
+    }
+}
+
+/// A CSV field without the double quotes a spreadsheet may put around it.
+fn unquoted(f: &str) -> &str {
+    let f = f.trim();
+    f.strip_prefix('"')
+        .and_then(|g| g.strip_suffix('"'))
+        .unwrap_or(f)
+        .trim()
+}
+
+/// Parses a labels CSV: `image,x,y,width,height` with an optional sixth `object` column, or
+/// the columns a first-line header names (`filename,xmin,ymin,xmax,ymax,class` and the like:
+/// [`Columns::of_header`]).
 pub fn parse_labels(path: &Path, text: &str) -> Result<Labels, ImportError> {
     let mut out: Labels = BTreeMap::new();
     // Spreadsheets write UTF-8 CSVs with a byte-order mark: it hid the header (`\u{feff}image`
     // is not `image`), which then failed as a row.
     let text = text.strip_prefix('\u{feff}').unwrap_or(text);
+    let mut columns = Columns::OBJLOC;
     for (i, raw) in text.lines().enumerate() {
         let line = i + 1;
         let content = raw.trim();
-        if content.is_empty() || content.starts_with('#') || (line == 1 && is_header(content)) {
+        if content.is_empty() || content.starts_with('#') {
             continue;
         }
         let err = |what: String| line_error(path, line, what);
-        let fields: Vec<&str> = content.split(',').map(str::trim).collect();
-        if fields.len() != 5 && fields.len() != 6 {
-            return Err(err(format!(
-                "expected 5 or 6 columns `image,x,y,width,height[,object]`, found {}",
-                fields.len()
-            )));
+        let fields: Vec<&str> = content.split(',').map(unquoted).collect();
+        if line == 1 && is_header(&fields) {
+            columns = Columns::of_header(&fields).map_err(err)?;
+            continue;
         }
-        if fields[0].is_empty() {
-            return Err(err("image name is empty".into()));
-        }
-        let roi = parse_box(&fields[1..5]).map_err(err)?;
-        let object = fields
-            .get(5)
-            .filter(|o| !o.is_empty())
-            .map(|o| (*o).to_owned());
-        out.entry(fields[0].to_owned())
+        let (image, object, roi) = parse_row(&columns, &fields).map_err(err)?;
+        out.entry(image.to_owned())
             .or_default()
             .push(LabelRow { line, object, roi });
     }
@@ -72,46 +175,106 @@ pub fn parse_labels(path: &Path, text: &str) -> Result<Labels, ImportError> {
     Ok(out)
 }
 
-/// Whether the first line is a header: its second column is a word (`image,x,...` as objloc
-/// writes it, `filename,xmin,...` from another tool), not a number or empty as a row's is
-/// (`image_001.png,10,...` is a row).
-fn is_header(content: &str) -> bool {
-    let x = content.split(',').nth(1).map(str::trim).unwrap_or("");
-    x.chars().next().is_some_and(char::is_alphabetic)
+/// One row's image, object (None: the import's default) and box (None: background).
+fn parse_row<'a>(
+    c: &Columns,
+    fields: &[&'a str],
+) -> Result<(&'a str, Option<String>, Option<RegionOfInterest>), String> {
+    match c.count {
+        None if fields.len() != 5 && fields.len() != 6 => {
+            return Err(format!(
+                "expected 5 or 6 columns `image,x,y,width,height[,object]`, found {}",
+                fields.len()
+            ));
+        }
+        Some(n) if fields.len() != n => {
+            return Err(format!(
+                "expected {n} columns as the header names, found {}",
+                fields.len()
+            ));
+        }
+        _ => {}
+    }
+    let image = fields[c.image];
+    if image.is_empty() {
+        return Err("image name is empty".into());
+    }
+    let edges = c.edges.map(|k| (k, fields[k]));
+    let roi = parse_box(edges, c.corners)?;
+    let object = c
+        .object
+        .and_then(|k| fields.get(k))
+        .filter(|o| !o.is_empty())
+        .map(|o| (*o).to_owned());
+    Ok((image, object, roi))
 }
 
-/// x, y, width, height in pixels, or all four empty (a background row). Labelling tools
-/// write sub-pixel boxes (`158.37`): such a box becomes the smallest whole-pixel box holding
-/// it, as a mask's does; whole numbers are taken as they are.
-fn parse_box(fields: &[&str]) -> Result<Option<RegionOfInterest>, String> {
-    if fields.iter().all(|f| f.is_empty()) {
+/// Whether the first line is a header: its second column is neither empty nor a number, as
+/// a row's x is (`image,x,...` as objloc writes it, `filename,xmin,...` or
+/// `filename,width,...` from other tools; `image_001.png,10,...` is a row, and so is
+/// `a.png,nan,...`, refused as one).
+fn is_header(fields: &[&str]) -> bool {
+    fields
+        .get(1)
+        .is_some_and(|x| !x.is_empty() && x.parse::<f64>().is_err())
+}
+
+/// A value within a millionth of a pixel of a whole number is that number: a box's right edge
+/// computed as `x + width` from a tool's fractions (`630.8405677794293 + 9.15943222057076`)
+/// lands an ulp past the image's edge, and rounding it outward would leave the image.
+fn snapped(v: f64) -> f64 {
+    let r = v.round();
+    if (v - r).abs() <= 1e-6 { r } else { v }
+}
+
+/// The box of a row from its four `(column, text)` values: x, y and width, height, or with
+/// `corners` the right and bottom edges; None when all four are empty (a background row).
+/// Labelling tools write sub-pixel boxes (`158.37`): such a box becomes the smallest
+/// whole-pixel box holding it, as a mask's does; whole numbers are taken as they are.
+fn parse_box(
+    fields: [(usize, &str); 4],
+    corners: bool,
+) -> Result<Option<RegionOfInterest>, String> {
+    if fields.iter().all(|(_, f)| f.is_empty()) {
         return Ok(None);
     }
     let mut v = [0.0f64; 4];
-    for (k, f) in fields.iter().enumerate() {
+    for (k, (col, f)) in fields.iter().enumerate() {
         v[k] = f
             .parse::<f64>()
             .ok()
             .filter(|x| x.is_finite())
-            .ok_or_else(|| format!("column {} ({f:?}) is not a number of pixels", k + 2))?;
+            .ok_or_else(|| format!("column {} ({f:?}) is not a number of pixels", col + 1))?;
         if v[k] < 0.0 || v[k] > f64::from(u32::MAX) {
             return Err(format!(
                 "column {} ({f:?}) is not a number of pixels from 0 to {}",
-                k + 2,
+                col + 1,
                 u32::MAX
             ));
         }
     }
-    if v[2] == 0.0 || v[3] == 0.0 {
-        return Err(format!("box {} x {} is empty", fields[2], fields[3]));
+    let (right, bottom) = if corners {
+        (v[2], v[3])
+    } else {
+        (v[0] + v[2], v[1] + v[3])
+    };
+    let (x0, y0) = (snapped(v[0]).floor(), snapped(v[1]).floor());
+    let (x1, y1) = (snapped(right).ceil(), snapped(bottom).ceil());
+    if right <= v[0] || bottom <= v[1] {
+        let [(_, a), (_, b), (_, c), (_, d)] = fields;
+        return Err(if corners {
+            format!("box from ({a}, {b}) to ({c}, {d}) is empty")
+        } else {
+            format!("box {c} x {d} is empty")
+        });
     }
-    // Whole numbers give back their own values (exact in f64); the `as` casts saturate.
-    let (x0, y0) = (v[0].floor(), v[1].floor());
+    // Whole numbers give back their own values (exact in f64); the `as` casts saturate. A
+    // box narrower than a millionth of a pixel is the pixel it lies in.
     Ok(Some(RegionOfInterest {
         x_offset: x0 as u32,
         y_offset: y0 as u32,
-        width: ((v[0] + v[2]).ceil() - x0) as u32,
-        height: ((v[1] + v[3]).ceil() - y0) as u32,
+        width: (x1 - x0).max(1.0) as u32,
+        height: (y1 - y0).max(1.0) as u32,
         do_rectify: false,
     }))
 }
@@ -253,6 +416,13 @@ mod tests {
         assert_eq!(l.len(), 1);
         let l = parse_labels(p, "image_1.png,1,2,3,4\nimage_2.png,,,,\n").unwrap();
         assert_eq!(l.len(), 2);
+        // objloc's own header takes rows with and without the object column.
+        let l = parse_labels(
+            p,
+            "image,x,y,width,height\na.png,1,2,3,4,mug\nb.png,1,2,3,4\n",
+        )
+        .unwrap();
+        assert_eq!(l["a.png"][0].object.as_deref(), Some("mug"));
         // A labelling tool's sub-pixel box: the whole-pixel box holding it.
         let l = parse_labels(p, "a.png,10.6,2.25,30.1,3.5\n").unwrap();
         let r = l["a.png"][0].roi.unwrap();
@@ -283,6 +453,82 @@ mod tests {
             let e = parse_labels(p, empty).unwrap_err();
             assert!(e.to_string().starts_with("l.csv: no label rows"), "{e}");
         }
+    }
+
+    /// Other tools' headers: corners instead of a size, TensorFlow's image size beside the
+    /// corners, quoted fields; a header naming no box is refused on its line.
+    #[test]
+    fn a_header_names_the_columns_rows_are_read_by() {
+        let p = Path::new("l.csv");
+        let boxes = |l: &Labels, name: &str| -> Vec<(u32, u32, u32, u32, Option<String>)> {
+            l[name]
+                .iter()
+                .map(|r| {
+                    let b = r.roi.unwrap();
+                    (b.x_offset, b.y_offset, b.width, b.height, r.object.clone())
+                })
+                .collect()
+        };
+        let l = parse_labels(
+            p,
+            "filename,xmin,ymin,xmax,ymax,class\na.png,10,20,40,60,mug\n",
+        )
+        .unwrap();
+        assert_eq!(
+            boxes(&l, "a.png"),
+            vec![(10, 20, 30, 40, Some("mug".into()))]
+        );
+        let tf = "filename,width,height,class,xmin,ymin,xmax,ymax\n\"a.png\",640,480,kettle,10,20,40,60\n";
+        let l = parse_labels(p, tf).unwrap();
+        assert_eq!(
+            boxes(&l, "a.png"),
+            vec![(10, 20, 30, 40, Some("kettle".into()))]
+        );
+        let l = parse_labels(p, "Image_Name,Left,Top,Width,Height\nb.png,1,2,3,4\n").unwrap();
+        assert_eq!(boxes(&l, "b.png"), vec![(1, 2, 3, 4, None)]);
+        let e = parse_labels(p, "filename,a,b,c,d\nb.png,1,2,3,4\n").unwrap_err();
+        assert!(
+            e.to_string().starts_with(
+                "l.csv:1: the header (filename,a,b,c,d) names no x (left edge) column"
+            ),
+            "{e}"
+        );
+        let e = parse_labels(p, "filename,xmin,ymin,xmax,ymax\nb.png,1,2,3\n").unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "l.csv:2: expected 5 columns as the header names, found 4"
+        );
+        let e = parse_labels(p, "filename,xmin,ymin,xmax,ymax\nb.png,5,2,3,4\n").unwrap_err();
+        assert_eq!(e.to_string(), "l.csv:2: box from (5, 2) to (3, 4) is empty");
+        // A first line whose x is `nan` is a row, refused as one.
+        let e = parse_labels(p, "a.png,nan,1,2,3\n").unwrap_err();
+        assert!(
+            e.to_string().starts_with("l.csv:1: column 2 (\"nan\")"),
+            "{e}"
+        );
+    }
+
+    /// A box converted from a tool's fractions whose right edge is the image's lands an ulp
+    /// past it (630.8405677794293 + 9.15943222057076 = 640.0000000000001): it stays at 640.
+    #[test]
+    fn a_box_edge_an_ulp_past_a_whole_pixel_is_that_pixel() {
+        let (x, w) = (630.8405677794293f64, 9.15943222057076);
+        assert!(
+            std::hint::black_box(x) + w > 640.0,
+            "the sum no longer lands past the edge"
+        );
+        let l = parse_labels(
+            Path::new("l.csv"),
+            "a.png,630.8405677794293,10,9.15943222057076,20\n",
+        )
+        .unwrap();
+        let r = l["a.png"][0].roi.unwrap();
+        assert_eq!(
+            (r.x_offset, r.y_offset, r.width, r.height),
+            (630, 10, 10, 20)
+        );
+        let l = parse_labels(Path::new("l.csv"), "a.png,10,10,0.0000000001,2\n").unwrap();
+        assert_eq!(l["a.png"][0].roi.unwrap().width, 1);
     }
 
     #[test]

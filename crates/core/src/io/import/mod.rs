@@ -367,16 +367,18 @@ fn read_labels(
     let names: Vec<String> = frames.iter().map(|f| name_of(&f.path)).collect();
     let mut resolved = Labels::new();
     for (name, rows) in labels.1 {
-        let Some(frame) = frame_named(&names, &name) else {
-            return Err(ImportError::File(CaptureError::Line {
+        let frame = frame_named(&names, &name).map_err(|stems| {
+            let place = images_place(&opts.poses).display();
+            ImportError::File(CaptureError::Line {
                 path: labels.0.clone(),
                 line: rows.first().map_or(0, |r| r.line),
-                what: format!(
-                    "image {name:?} is not in {}",
-                    images_place(&opts.poses).display()
-                ),
-            }));
-        };
+                what: if stems > 1 {
+                    format!("image {name:?} names {stems} images of {place} by their stem; name one with its extension")
+                } else {
+                    format!("image {name:?} is not in {place}")
+                },
+            })
+        })?;
         resolved.entry(frame.to_owned()).or_default().extend(rows);
     }
     // Rows of one image named two ways (`rgb/1.png`, `1.png`) in the file's order.
@@ -388,17 +390,17 @@ fn read_labels(
 
 /// The imported image a labels row names: its file name, or a path ending in it (`rgb/1.png`,
 /// as TUM RGB-D's lists name frames), or its name without the extension when one image alone
-/// has that stem.
-fn frame_named<'a>(names: &'a [String], label: &str) -> Option<&'a str> {
+/// has that stem. Err: how many images have that stem (0, or several).
+fn frame_named<'a>(names: &'a [String], label: &str) -> Result<&'a str, usize> {
     let last = label.rsplit(['/', '\\']).next().unwrap_or(label);
     if let Some(n) = names.iter().find(|n| *n == label || *n == last) {
-        return Some(n);
+        return Ok(n);
     }
     let stem = |n: &'a String| Path::new(n).file_stem().and_then(|s| s.to_str());
-    let mut same_stem = names.iter().filter(|n| stem(n) == Some(last));
-    match (same_stem.next(), same_stem.next()) {
-        (Some(n), None) => Some(n),
-        _ => None,
+    let same_stem: Vec<&String> = names.iter().filter(|n| stem(n) == Some(last)).collect();
+    match same_stem.as_slice() {
+        [n] => Ok(n),
+        many => Err(many.len()),
     }
 }
 
@@ -539,10 +541,17 @@ fn write_session(
         }
         let c = &f.intrinsics.camera;
         if (w, h) != (c.width, c.height) {
+            // Intrinsics for the photo as a viewer turns it are the likely cause.
+            let hint = match turn {
+                Some(t) if (h, w) == (c.width, c.height) => format!(
+                    " (its EXIF orientation asks a viewer to {t}; objloc uses the pixels as stored, so give the intrinsics of the stored image)"
+                ),
+                _ => String::new(),
+            };
             return Err(ImportError::File(CaptureError::Invalid {
                 path: f.path.clone(),
                 what: format!(
-                    "image is {w} x {h} but its intrinsics are for {} x {}",
+                    "image is {w} x {h} but its intrinsics are for {} x {}{hint}",
                     c.width, c.height
                 ),
             }));
@@ -684,18 +693,18 @@ mod tests {
             .map(String::from)
             .collect();
         let found = |l: &str| frame_named(&names, l);
-        assert_eq!(found("a.jpg"), Some("a.jpg"));
+        assert_eq!(found("a.jpg"), Ok("a.jpg"));
         assert_eq!(
             found("rgb/1305031102.175304.png"),
-            Some("1305031102.175304.png")
+            Ok("1305031102.175304.png")
         );
-        assert_eq!(found("C:\\shots\\a.jpg"), Some("a.jpg"));
-        assert_eq!(found("1305031102.175304"), Some("1305031102.175304.png"));
-        assert_eq!(found("./a"), Some("a.jpg"));
+        assert_eq!(found("C:\\shots\\a.jpg"), Ok("a.jpg"));
+        assert_eq!(found("1305031102.175304"), Ok("1305031102.175304.png"));
+        assert_eq!(found("./a"), Ok("a.jpg"));
         // Two images share the stem b; a.png is another file than a.jpg.
-        assert_eq!(found("b"), None);
-        assert_eq!(found("a.png"), None);
-        assert_eq!(found("c.jpg"), None);
+        assert_eq!(found("b"), Err(2));
+        assert_eq!(found("a.png"), Err(0));
+        assert_eq!(found("c.jpg"), Err(0));
     }
 
     #[test]

@@ -91,7 +91,9 @@ pub fn parse_seconds_ns(s: &str) -> Option<i64> {
     } else {
         format!("{frac:0<9}").parse().ok()?
     };
-    let ns = sec * 1_000_000_000 + frac_ns;
+    // Checked: ten digits of seconds reach past i64 nanoseconds (an image named
+    // `9999999999.jpg`).
+    let ns = sec.checked_mul(1_000_000_000)?.checked_add(frac_ns)?;
     Some(if neg { -ns } else { ns })
 }
 
@@ -105,11 +107,13 @@ pub fn parse_trajectory(path: &Path, text: &str) -> Result<Vec<TrajectoryPose>, 
             continue;
         }
         let err = |what: String| line_error(path, line, what);
-        // Spaces as TUM writes them; commas as some exporters do.
-        let fields: Vec<&str> = content
-            .split(|c: char| c.is_whitespace() || c == ',')
-            .filter(|f| !f.is_empty())
-            .collect();
+        // Spaces as TUM writes them; commas as some exporters do, where an empty field is
+        // one (`1.0,0,,0,...` has nine fields, not eight).
+        let fields: Vec<&str> = if content.contains(',') {
+            content.split(',').map(str::trim).collect()
+        } else {
+            content.split_whitespace().collect()
+        };
         if fields.len() != 8 {
             return Err(err(format!(
                 "expected 8 fields `timestamp tx ty tz qx qy qz qw`, found {}",
@@ -300,6 +304,10 @@ mod tests {
         assert_eq!(parse_seconds_ns("frame_001"), None);
         assert_eq!(parse_seconds_ns("."), None);
         assert_eq!(parse_seconds_ns("1.0000000001"), None);
+        // Past i64 nanoseconds (2262): not a time, rather than an overflow.
+        assert_eq!(parse_seconds_ns("9223372036.854775807"), Some(i64::MAX));
+        assert_eq!(parse_seconds_ns("9223372036.854775808"), None);
+        assert_eq!(parse_seconds_ns("9999999999"), None);
     }
 
     #[test]
@@ -362,5 +370,11 @@ mod tests {
         // The same trajectory written with commas reads the same.
         let c = parse_trajectory(p, "1.0,0,0,0,0,0,0,1\n2.0, 2, 0, 0, 0, 0, 0, 1\n").unwrap();
         assert_eq!(c, t);
+        // An empty field between commas is a field: nine, not eight.
+        let e = parse_trajectory(p, "1.0,0,,0,0,0,0,0,1\n").unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "t:1: expected 8 fields `timestamp tx ty tz qx qy qz qw`, found 9"
+        );
     }
 }
