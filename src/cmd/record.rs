@@ -354,7 +354,9 @@ fn run_import(a: ImportArgs) -> anyhow::Result<()> {
     // The result on stdout like every command's; notes on stderr with the warnings.
     // Only a TUM trajectory is matched to the images (the other formats name each image).
     let matched = match &stats.tum_matching {
-        Some(Matching::FileNameStamps) => "; matched by file-name timestamps",
+        Some(Matching::FileNameStamps | Matching::FileNameStampsWithout(_)) => {
+            "; matched by file-name timestamps"
+        }
         Some(_) => "; matched in order",
         None => "",
     };
@@ -367,7 +369,18 @@ fn run_import(a: ImportArgs) -> anyhow::Result<()> {
     if let Some(Matching::InOrderNotStamps(why)) = &stats.tum_matching {
         eprintln!("note: {why}");
     }
-    if let Some(note) = &stats.pose_note {
+    if let Some(Matching::FileNameStampsWithout(names)) = &stats.tum_matching {
+        let rows = match stats.label_rows_left_out {
+            0 => String::new(),
+            n => format!(", and their {n} label row(s)"),
+        };
+        eprintln!(
+            "note: {} image(s) lie beyond the trajectory's first or last pose and are left out{rows} (unposed frames, as structure-from-motion leaves the ends of a sequence): {}",
+            names.len(),
+            names_listed(names)
+        );
+    }
+    for note in &stats.notes {
         eprintln!("note: {note}");
     }
     if stats.distorted > 0 {
@@ -383,4 +396,13 @@ fn run_import(a: ImportArgs) -> anyhow::Result<()> {
         );
     }
     Ok(())
+}
+
+/// Up to five names, then how many more.
+fn names_listed(names: &[String]) -> String {
+    let shown = names.iter().take(5).cloned().collect::<Vec<_>>().join(", ");
+    match names.len() {
+        n if n > 5 => format!("{shown} and {} more", n - 5),
+        _ => shown,
+    }
 }

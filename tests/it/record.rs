@@ -765,6 +765,77 @@ fn tum_pairs(names: &[&str], times: &[f64]) -> (Vec<(u8, f64)>, String) {
     (pairs, err)
 }
 
+/// Frames structure-from-motion left unposed at both ends of a sequence named by its stamps:
+/// left out with their label rows, and said so; a principal point outside the images and
+/// boxes given as percentages are said to be what they likely are.
+#[test]
+fn import_leaves_out_images_beyond_the_trajectory_and_questions_odd_intrinsics_and_boxes() {
+    let dir = tempfile::tempdir().unwrap();
+    let names = [
+        "0.5.png", "1.0.png", "1.5.png", "2.0.png", "2.5.png", "9.0.png",
+    ];
+    let named: Vec<(&str, u32, u32, [u8; 3])> =
+        names.iter().map(|n| (*n, 400, 400, [90, 0, 0])).collect();
+    let images = image_dir(dir.path(), &named);
+    let traj = dir.path().join("traj.txt");
+    std::fs::write(
+        &traj,
+        "1.0 0 0 0 0 0 0 1\n2.0 1 0 0 0 0 0 1\n3.0 2 0 0 0 0 0 1\n",
+    )
+    .unwrap();
+    let labels = dir.path().join("labels.csv");
+    std::fs::write(
+        &labels,
+        "image,x,y,width,height\n1.0.png,2,3,40,50\n9.0.png,1,1,5,5\n",
+    )
+    .unwrap();
+    let out = dir.path().join("t.mcap");
+    let import = |camera: &str| {
+        let args = [
+            "record",
+            "import",
+            "--images",
+            p(&images),
+            "--trajectory",
+            p(&traj),
+            "--camera",
+            camera,
+            "--labels",
+            p(&labels),
+            "-o",
+            p(&out),
+        ];
+        objloc(&args, &[])
+    };
+    let text = said(&import("300,300,200,200"));
+    assert!(
+        text.contains("(4 frames, 1 labelled; matched by file-name timestamps)"),
+        "{text}"
+    );
+    assert!(
+        text.contains("note: 2 image(s) lie beyond the trajectory's first or last pose and are left out, and their 1 label row(s)") && text.contains("sequence): 0.5.png, 9.0.png\n"),
+        "{text}"
+    );
+    assert!(
+        text.contains("every labelled box lies within the first 100 x 100 pixels"),
+        "{text}"
+    );
+    // Intrinsics for images twice as large: outside these, refused in one line.
+    std::fs::remove_file(&out).unwrap();
+    let o = import("600,600,400,400");
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert_eq!(err.lines().count(), 1, "{err}");
+    assert!(
+        err.contains("the principal point (400, 400) lies outside the 400 x 400 images"),
+        "{err}"
+    );
+    assert!(!out.exists());
+    // Half as large: within them, far from the centre, so questioned.
+    let text = said(&import("150,150,100,100"));
+    assert!(text.contains("note: --camera's principal point (100, 100) lies 25 % of the image's size from the centre"), "{text}");
+}
+
 #[test]
 fn import_tum_pairs_unpadded_names_in_natural_order() {
     let want: Vec<(u8, f64)> = (1..=12).map(|k| (k as u8, k as f64)).collect();

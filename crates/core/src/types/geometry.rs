@@ -150,6 +150,26 @@ impl Camera {
 /// The point nearest to every optical axis in the least-squares sense; `None` when the axes
 /// are (nearly) parallel or the point lies behind more than half of the cameras.
 pub fn axes_convergence(cameras: &[Iso3]) -> Option<Vector3<f64>> {
+    let fit = axes_fit(cameras)?;
+    (2 * fit.in_front > cameras.len()).then_some(fit.point)
+}
+
+/// How the cameras' optical axes (+z) meet: the least-squares point nearest to all of them
+/// and how well it fits.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AxesFit {
+    /// The point nearest to every axis (as lines, in front of the cameras or not).
+    pub point: Vector3<f64>,
+    /// Cameras that have the point in front of them.
+    pub in_front: usize,
+    /// Root mean square distance of the axes from the point.
+    pub rms_miss: f64,
+    /// Median distance of the cameras from the point.
+    pub median_distance: f64,
+}
+
+/// [`AxesFit`] of `cameras`; `None` for fewer than two or (nearly) parallel axes.
+pub fn axes_fit(cameras: &[Iso3]) -> Option<AxesFit> {
     let mut a = Matrix3::zeros();
     let mut b = Vector3::zeros();
     for c in cameras {
@@ -164,11 +184,23 @@ pub fn axes_convergence(cameras: &[Iso3]) -> Option<Vector3<f64>> {
         return None;
     }
     let p = a.try_inverse()? * b;
-    let in_front = cameras
-        .iter()
-        .filter(|c| (c.rotation * Vector3::z()).dot(&(p - c.translation.vector)) > 0.0)
-        .count();
-    (2 * in_front > cameras.len()).then_some(p)
+    let mut in_front = 0;
+    let mut miss2 = 0.0;
+    let mut distances = Vec::with_capacity(cameras.len());
+    for c in cameras {
+        let d = c.rotation * Vector3::z();
+        let to_p = p - c.translation.vector;
+        in_front += usize::from(d.dot(&to_p) > 0.0);
+        miss2 += (to_p - d * d.dot(&to_p)).norm_squared();
+        distances.push(to_p.norm());
+    }
+    distances.sort_by(f64::total_cmp);
+    Some(AxesFit {
+        point: p,
+        in_front,
+        rms_miss: (miss2 / cameras.len() as f64).sqrt(),
+        median_distance: distances[distances.len() / 2],
+    })
 }
 
 #[cfg(test)]

@@ -178,8 +178,18 @@ pub fn parse_labels(path: &Path, text: &str) -> Result<Labels, ImportError> {
 /// One row's image, object (None: the import's default) and box (None: background).
 fn parse_row<'a>(
     c: &Columns,
-    fields: &[&'a str],
+    mut fields: &[&'a str],
 ) -> Result<(&'a str, Option<String>, Option<RegionOfInterest>), String> {
+    // Empty fields past the last column: a spreadsheet's trailing commas.
+    while fields.len() > c.count.unwrap_or(6) && fields.last() == Some(&"") {
+        fields = &fields[..fields.len() - 1];
+    }
+    if fields.len() == 1 && fields[0].contains([';', '\t']) {
+        return Err(format!(
+            "one column where {} are due: objloc reads fields separated by commas, not semicolons or tabs",
+            c.count.map_or("5 or 6".to_owned(), |n| n.to_string())
+        ));
+    }
     match c.count {
         None if fields.len() != 5 && fields.len() != 6 => {
             return Err(format!(
@@ -245,11 +255,13 @@ fn parse_box(
             .ok()
             .filter(|x| x.is_finite())
             .ok_or_else(|| format!("column {} ({f:?}) is not a number of pixels", col + 1))?;
-        if v[k] < 0.0 || v[k] > f64::from(u32::MAX) {
+        // A left or top edge less than a pixel before the image is a labeller's rounding at
+        // the border (`-0.4`): the border.
+        let above_least = if k < 2 { v[k] > -1.0 } else { v[k] >= 0.0 };
+        if !above_least || v[k] > f64::from(u32::MAX) {
             return Err(format!(
-                "column {} ({f:?}) is not a number of pixels from 0 to {}",
-                col + 1,
-                u32::MAX
+                "column {} ({f:?}) is not a number of pixels in the image",
+                col + 1
             ));
         }
     }
@@ -258,7 +270,10 @@ fn parse_box(
     } else {
         (v[0] + v[2], v[1] + v[3])
     };
-    let (x0, y0) = (snapped(v[0]).floor(), snapped(v[1]).floor());
+    let (x0, y0) = (
+        snapped(v[0]).floor().max(0.0),
+        snapped(v[1]).floor().max(0.0),
+    );
     let (x1, y1) = (snapped(right).ceil(), snapped(bottom).ceil());
     if right <= v[0] || bottom <= v[1] {
         let [(_, a), (_, b), (_, c), (_, d)] = fields;
@@ -430,7 +445,7 @@ mod tests {
         for (row, what) in [
             (
                 "a.png,-1,2,3,4",
-                "column 2 (\"-1\") is not a number of pixels from 0 to 4294967295",
+                "column 2 (\"-1\") is not a number of pixels in the image",
             ),
             (
                 "a.png,1,x,3,4",
@@ -500,6 +515,15 @@ mod tests {
         );
         let e = parse_labels(p, "filename,xmin,ymin,xmax,ymax\nb.png,5,2,3,4\n").unwrap_err();
         assert_eq!(e.to_string(), "l.csv:2: box from (5, 2) to (3, 4) is empty");
+        // Trailing commas are no columns; semicolons are said to be no separator.
+        let l = parse_labels(p, "a.png,1,2,3,4,mug,,\nb.png,,,,\n").unwrap();
+        assert_eq!(l["a.png"][0].object.as_deref(), Some("mug"));
+        assert_eq!(l["b.png"][0].roi, None);
+        let e = parse_labels(p, "a.png;1;2;3;4\n").unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "l.csv:1: one column where 5 or 6 are due: objloc reads fields separated by commas, not semicolons or tabs"
+        );
         // A first line whose x is `nan` is a row, refused as one.
         let e = parse_labels(p, "a.png,nan,1,2,3\n").unwrap_err();
         assert!(
@@ -527,6 +551,10 @@ mod tests {
             (r.x_offset, r.y_offset, r.width, r.height),
             (630, 10, 10, 20)
         );
+        // A left edge less than a pixel before the image is the border; the right edge stays.
+        let l = parse_labels(Path::new("l.csv"), "a.png,-0.4,-0.0,3.3,2\n").unwrap();
+        let r = l["a.png"][0].roi.unwrap();
+        assert_eq!((r.x_offset, r.y_offset, r.width, r.height), (0, 0, 3, 2));
         let l = parse_labels(Path::new("l.csv"), "a.png,10,10,0.0000000001,2\n").unwrap();
         assert_eq!(l["a.png"][0].roi.unwrap().width, 1);
     }

@@ -138,12 +138,15 @@ pub struct ImportStats {
     pub tum_matching: Option<Matching>,
     /// Frames whose intrinsics carry a lens distortion.
     pub distorted: usize,
-    /// Something about the poses a user should check, in words (the imported session is
-    /// written all the same).
-    pub pose_note: Option<String>,
+    /// What a user should check about the poses and the camera, in words (the imported
+    /// session is written all the same).
+    pub notes: Vec<String>,
     /// Images whose EXIF orientation asks a viewer to turn or flip them, and the first's
     /// name and what its tag asks (see [`exif_turn`]).
     pub exif_turned: Option<ExifTurned>,
+    /// Label rows of images left out of the session
+    /// ([`Matching::FileNameStampsWithout`]).
+    pub label_rows_left_out: usize,
 }
 
 /// How many images carry an EXIF orientation other than "as stored", the first's name, and
@@ -270,6 +273,16 @@ fn tum_intrinsics(
     (width, height): (u32, u32),
 ) -> Result<Intrinsics, ImportError> {
     let [fx, fy, cx, cy] = camera;
+    // Typed by hand, so checked against the images: a principal point outside them is
+    // intrinsics for another image size (or in another order), and every ray would be off.
+    if !(cx > 0.0 && cx < f64::from(width) && cy > 0.0 && cy < f64::from(height)) {
+        return Err(ImportError::File(CaptureError::Invalid {
+            path: trajectory.into(),
+            what: format!(
+                "--camera {fx},{fy},{cx},{cy}: the principal point ({cx}, {cy}) lies outside the {width} x {height} images: intrinsics for another image size, or not in the order FX,FY,CX,CY?"
+            ),
+        }));
+    }
     let d = distortion.to_plumb_bob();
     let lens = crate::io::msgs::MAX_DISTORTION_COEFFICIENT;
     Camera::from_k(width, height, [fx, 0.0, cx, 0.0, fy, cy, 0.0, 0.0, 1.0])
@@ -295,7 +308,11 @@ pub fn import(
 ) -> Result<ImportStats, ImportError> {
     let (frames, tum_matching) = frames(&opts.poses)?;
     check_stamps(&frames)?;
-    let labels = read_labels(opts, &frames)?;
+    let left_out = match &tum_matching {
+        Some(Matching::FileNameStampsWithout(names)) => names.as_slice(),
+        _ => &[],
+    };
+    let (labels, rows_left_out) = read_labels(opts, &frames, left_out)?;
     let result = write_session(opts, out, &frames, labels.as_ref(), progress);
     if result.is_err() {
         // An error leaves nothing behind: no final file, no partial one.
@@ -310,30 +327,120 @@ pub fn import(
             .iter()
             .filter(|f| !f.intrinsics.distortion.is_zero())
             .count(),
-        pose_note: axes_note(&frames),
+        notes: camera_note(opts, &frames)
+            .into_iter()
+            .chain(pose_notes(&frames))
+            .chain(labels.as_ref().and_then(|l| scale_note(&l.1, &frames)))
+            .collect(),
         exif_turned,
+        label_rows_left_out: rows_left_out,
     })
 }
 
-/// A note when the poses look like OpenGL camera axes (y up, z back) given where OpenCV's
-/// (x right, y down, z forward) were due: the cameras' +z axes meet behind them but their -z
-/// axes meet in front. A capture around an object converges one way or the other; a camera
-/// driving forward converges neither way and gets no note.
-fn axes_note(frames: &[Frame]) -> Option<String> {
-    use crate::types::geometry::axes_convergence;
+/// Side of the corner every box may lie within, pixels, on images whose sides are at least
+/// four times as long, before a note asks whether the boxes are percentages or fractions.
+const SCALE_NOTE_PX: u32 = 100;
+
+/// A note when every labelled box lies within the first [`SCALE_NOTE_PX`] pixels of much
+/// larger images: labelling tools export boxes as percentages of the image (Label Studio)
+/// or fractions (YOLO), which read as pixels put every box in the top-left corner.
+fn scale_note(labels: &Labels, frames: &[Frame]) -> Option<String> {
+    let c = &frames.first()?.intrinsics.camera;
+    let boxes: Vec<&crate::io::msgs::RegionOfInterest> = labels
+        .values()
+        .flatten()
+        .filter_map(|r| r.roi.as_ref())
+        .collect();
+    let small = c.width.min(c.height) >= 4 * SCALE_NOTE_PX
+        && !boxes.is_empty()
+        && boxes.iter().all(|r| {
+            let end = |o: u32, n: u32| u64::from(o) + u64::from(n);
+            end(r.x_offset, r.width) <= u64::from(SCALE_NOTE_PX)
+                && end(r.y_offset, r.height) <= u64::from(SCALE_NOTE_PX)
+        });
+    small.then(|| {
+        format!(
+            "every labelled box lies within the first {SCALE_NOTE_PX} x {SCALE_NOTE_PX} pixels of the {} x {} images: are the labels percentages or fractions of the image (as labelling tools export them) rather than pixels?",
+            c.width, c.height
+        )
+    })
+}
+
+/// Farthest a typed principal point may lie from the image's centre, as a fraction of the
+/// image's size along that axis, before a note asks whether the intrinsics are for these
+/// images: a camera's is within a few per cent; `--camera` for images twice as large puts
+/// it near the far edge, for images half as large near a quarter.
+const MAX_PRINCIPAL_OFFSET: f64 = 0.2;
+
+/// A note when `--camera`'s principal point lies far from the images' centre (a TUM import;
+/// the other pose files carry their own calibration).
+fn camera_note(opts: &ImportOptions, frames: &[Frame]) -> Option<String> {
+    let PoseFile::Tum { .. } = opts.poses else {
+        return None;
+    };
+    let c = &frames.first()?.intrinsics.camera;
+    let (w, h) = (f64::from(c.width), f64::from(c.height));
+    let off = ((c.cx - w / 2.0).abs() / w).max((c.cy - h / 2.0).abs() / h);
+    (off > MAX_PRINCIPAL_OFFSET).then(|| {
+        format!(
+            "--camera's principal point ({}, {}) lies {:.0} % of the image's size from the centre of the {} x {} images (a camera's is within a few per cent): are the intrinsics for images of this size, not for a scaled copy of them (scaling the images by s scales fx, fy, cx and cy by s)?",
+            c.cx,
+            c.cy,
+            100.0 * off,
+            c.width,
+            c.height,
+        )
+    })
+}
+
+/// Most the cameras' optical axes may miss the point nearest all of them (rms, as a fraction
+/// of the cameras' median distance from it), and least fraction of the cameras that must
+/// face it, before a capture's poses are questioned. Measured: the real captures of
+/// `../shared/realdata` 0.001-0.12, all facing; 90 simulated sessions taken as captures
+/// (`scripts/measure_sim_captures.py`) at most 0.73, at least 0.52 facing (training
+/// sessions, most of whose frames look away from the object on purpose; tours at most 0.5);
+/// the fruit capture's poses inverted (world-to-camera) 0.82 with 0.54 facing, its
+/// quaternions read w first 0.82 with 0.86 facing.
+const MAX_AXES_MISS: f64 = 0.75;
+const MIN_AXES_IN_FRONT: f64 = 0.5;
+
+/// What a user should check about the poses, in words: OpenGL camera axes (y up, z back)
+/// where OpenCV's (x right, y down, z forward) were due, when the cameras' +z axes meet behind
+/// them but their -z axes meet in front; otherwise axes that meet nowhere in front of most
+/// cameras, as inverted poses or quaternions in another order give. A capture around an
+/// object converges; a camera driving forward converges neither way and gets no note.
+fn pose_notes(frames: &[Frame]) -> Vec<String> {
+    use crate::types::geometry::{axes_convergence, axes_fit};
     let poses: Vec<Iso3> = frames.iter().map(|f| f.world_from_camera).collect();
+    if poses.len() < 3 {
+        return Vec::new();
+    }
     let flip = nalgebra::UnitQuaternion::from_axis_angle(
         &nalgebra::Vector3::x_axis(),
         std::f64::consts::PI,
     );
     let flipped: Vec<Iso3> = poses.iter().map(|p| p * flip).collect();
-    (poses.len() >= 3 && axes_convergence(&poses).is_none() && axes_convergence(&flipped).is_some())
-        .then(|| {
+    if axes_convergence(&poses).is_none() && axes_convergence(&flipped).is_some() {
+        return vec![
             "the cameras' optical axes (+z) do not meet in front of them, but their -z axes do: \
              are the poses in OpenGL camera axes (y up, z back)? A TUM trajectory and COLMAP \
              hold OpenCV axes (x right, y down, z forward)"
-                .to_owned()
-        })
+                .to_owned(),
+        ];
+    }
+    let Some(fit) = axes_fit(&poses) else {
+        return Vec::new();
+    };
+    let in_front = fit.in_front as f64 / poses.len() as f64;
+    let miss = fit.rms_miss / fit.median_distance.max(f64::MIN_POSITIVE);
+    if in_front >= MIN_AXES_IN_FRONT && miss <= MAX_AXES_MISS {
+        return Vec::new();
+    }
+    vec![format!(
+        "the cameras' optical axes do not meet around one place in front of them ({} of {} cameras face the point nearest all of them, and the axes miss it by {miss:.2} times the cameras' distance from it, rms): are the poses camera-to-world (as TUM and NeRF files hold them, not world-to-camera as COLMAP's images.txt), with quaternions in x y z w order? A capture around an object meets; a camera that does not circle one place may ignore this",
+        fit.in_front,
+        poses.len()
+    )]
 }
 
 /// The labels from the CSV or the masks (with the file they came from), checked to name
@@ -341,7 +448,8 @@ fn axes_note(frames: &[Frame]) -> Option<String> {
 fn read_labels(
     opts: &ImportOptions,
     frames: &[Frame],
-) -> Result<Option<(PathBuf, Labels)>, ImportError> {
+    left_out: &[String],
+) -> Result<(Option<(PathBuf, Labels)>, usize), ImportError> {
     let labels = match (&opts.labels, &opts.masks) {
         (Some(p), _) => {
             let text = std::fs::read_to_string(p).map_err(|source| {
@@ -362,11 +470,16 @@ fn read_labels(
                 .collect();
             (dir.clone(), labels_from_masks(dir, &sized)?)
         }
-        (None, None) => return Ok(None),
+        (None, None) => return Ok((None, 0)),
     };
     let names: Vec<String> = frames.iter().map(|f| name_of(&f.path)).collect();
     let mut resolved = Labels::new();
+    let mut rows_left_out = 0;
     for (name, rows) in labels.1 {
+        if frame_named(left_out, &name).is_ok() {
+            rows_left_out += rows.len();
+            continue;
+        }
         let frame = frame_named(&names, &name).map_err(|stems| {
             let place = images_place(&opts.poses).display();
             ImportError::File(CaptureError::Line {
@@ -385,22 +498,43 @@ fn read_labels(
     for rows in resolved.values_mut() {
         rows.sort_by_key(|r| r.line);
     }
-    Ok(Some((labels.0, resolved)))
+    Ok((Some((labels.0, resolved)), rows_left_out))
 }
 
 /// The imported image a labels row names: its file name, or a path ending in it (`rgb/1.png`,
-/// as TUM RGB-D's lists name frames), or its name without the extension when one image alone
-/// has that stem. Err: how many images have that stem (0, or several).
+/// as TUM RGB-D's lists name frames), or the one image whose name differs only in case
+/// (`IMG_1.JPG`) or whose stem is the row's name or its stem (`1`, or `1.jpg` for images
+/// converted to `1.png`). Err: how many images have that stem (0, or several).
 fn frame_named<'a>(names: &'a [String], label: &str) -> Result<&'a str, usize> {
     let last = label.rsplit(['/', '\\']).next().unwrap_or(label);
     if let Some(n) = names.iter().find(|n| *n == label || *n == last) {
         return Ok(n);
     }
-    let stem = |n: &'a String| Path::new(n).file_stem().and_then(|s| s.to_str());
-    let same_stem: Vec<&String> = names.iter().filter(|n| stem(n) == Some(last)).collect();
-    match same_stem.as_slice() {
-        [n] => Ok(n),
+    let only = |hits: Vec<&'a String>| match hits.as_slice() {
+        [n] => Ok(n.as_str()),
         many => Err(many.len()),
+    };
+    let found = only(
+        names
+            .iter()
+            .filter(|n| n.eq_ignore_ascii_case(last))
+            .collect(),
+    );
+    if found.is_ok() {
+        return found;
+    }
+    fn stem(n: &str) -> Option<&str> {
+        Path::new(n).file_stem().and_then(|s| s.to_str())
+    }
+    let same = |wanted: &str| -> Vec<&'a String> {
+        names
+            .iter()
+            .filter(|n| stem(n).is_some_and(|s| s.eq_ignore_ascii_case(wanted)))
+            .collect()
+    };
+    match only(same(last)) {
+        Err(0) => only(same(stem(last).unwrap_or(last))),
+        other => other,
     }
 }
 
@@ -616,7 +750,18 @@ fn frame_labels(
     for row in rows {
         let object = row.object.as_deref().unwrap_or(&opts.object);
         let regions = by_object.entry(object).or_default();
-        let Some(r) = row.roi else { continue };
+        let Some(mut r) = row.roi else { continue };
+        // A box reaching at most a pixel past the edge is the labeller's rounding (a
+        // sub-pixel edge at 605.001 rounded outward, an inclusive last column): clipped.
+        let past = |o: u32, n: u32, size: u32| {
+            (u64::from(o) + u64::from(n)).saturating_sub(u64::from(size))
+        };
+        if past(r.x_offset, r.width, w) == 1 && r.width > 1 {
+            r.width -= 1;
+        }
+        if past(r.y_offset, r.height, h) == 1 && r.height > 1 {
+            r.height -= 1;
+        }
         if u64::from(r.x_offset) + u64::from(r.width) > u64::from(w)
             || u64::from(r.y_offset) + u64::from(r.height) > u64::from(h)
         {
@@ -644,6 +789,97 @@ fn frame_labels(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A hand-held orbit of cameras around an object away from the world's origin (as
+    /// structure-from-motion places it: COLMAP's origin is a camera's), as frames (OpenCV
+    /// axes).
+    fn orbit(n: usize) -> Vec<Frame> {
+        (0..n)
+            .map(|k| {
+                let a = k as f64 / n as f64 * std::f64::consts::TAU;
+                // A hand-held orbit: radius, height and aim vary from frame to frame.
+                let r = 2.0 + 0.3 * (3.0 * a).sin();
+                let centre = nalgebra::Vector3::new(1.5, 2.5, 0.3);
+                let eye =
+                    nalgebra::Point3::new(r * a.cos(), r * a.sin(), 0.4 + 0.4 * (k % 3) as f64)
+                        + centre;
+                let aim =
+                    nalgebra::Point3::new(0.05 * (2.0 * a).cos(), 0.05 * a.sin(), 0.0) + centre;
+                // z towards the aim, y down (world z up).
+                let view = nalgebra::Isometry3::look_at_rh(
+                    &eye,
+                    &aim,
+                    &nalgebra::Vector3::new(0.0, 0.0, -1.0),
+                );
+                // look_at_rh looks along -z: turn about y so +z looks at the target.
+                let turn = nalgebra::UnitQuaternion::from_axis_angle(
+                    &nalgebra::Vector3::y_axis(),
+                    std::f64::consts::PI,
+                );
+                Frame {
+                    path: format!("{k}.png").into(),
+                    stamp_ns: k as i64,
+                    world_from_camera: view.inverse() * turn,
+                    intrinsics: Intrinsics {
+                        camera: Camera::from_k(
+                            100,
+                            100,
+                            [80.0, 0.0, 50.0, 0.0, 80.0, 50.0, 0.0, 0.0, 1.0],
+                        )
+                        .unwrap(),
+                        distortion: Distortion::default(),
+                    },
+                }
+            })
+            .collect()
+    }
+
+    /// Poses around an object raise no question; the same inverted (world-to-camera), or with
+    /// their quaternions read w first, or in OpenGL axes, each get the note that names it.
+    #[test]
+    fn poses_that_meet_nowhere_are_questioned() {
+        let good = orbit(12);
+        for f in &good {
+            let z = f.world_from_camera.rotation * nalgebra::Vector3::z();
+            let c = nalgebra::Vector3::new(1.5, 2.5, 0.3);
+            let to_object = (c - f.world_from_camera.translation.vector).normalize();
+            assert!(z.dot(&to_object) > 0.99, "{z}");
+        }
+        assert!(pose_notes(&good).is_empty(), "{:?}", pose_notes(&good));
+        let with = |g: &dyn Fn(&Iso3) -> Iso3| -> Vec<String> {
+            let frames: Vec<Frame> = good
+                .iter()
+                .map(|f| Frame {
+                    world_from_camera: g(&f.world_from_camera),
+                    ..f.clone()
+                })
+                .collect();
+            pose_notes(&frames)
+        };
+        let inverted = with(&|p| p.inverse());
+        assert!(
+            inverted[0].contains("are the poses camera-to-world"),
+            "{inverted:?}"
+        );
+        let w_first = with(&|p| {
+            let q = p.rotation.quaternion();
+            let (x, y, z, w) = (q.i, q.j, q.k, q.w);
+            // The file's x y z w read as w x y z.
+            let read =
+                nalgebra::UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(x, y, z, w));
+            Iso3::from_parts(p.translation, read)
+        });
+        assert!(
+            w_first[0].contains("quaternions in x y z w order"),
+            "{w_first:?}"
+        );
+        let flip = nalgebra::UnitQuaternion::from_axis_angle(
+            &nalgebra::Vector3::x_axis(),
+            std::f64::consts::PI,
+        );
+        let gl = with(&|p| p * flip);
+        assert!(gl[0].contains("OpenGL camera axes"), "{gl:?}");
+    }
 
     /// A 16 x 8 JPEG, with an EXIF segment carrying orientation `tag` when given.
     fn jpeg_with_orientation(tag: Option<u8>) -> Vec<u8> {
@@ -701,9 +937,13 @@ mod tests {
         assert_eq!(found("C:\\shots\\a.jpg"), Ok("a.jpg"));
         assert_eq!(found("1305031102.175304"), Ok("1305031102.175304.png"));
         assert_eq!(found("./a"), Ok("a.jpg"));
-        // Two images share the stem b; a.png is another file than a.jpg.
+        // Another case, another extension (images converted to PNG): the one image of that
+        // stem.
+        assert_eq!(found("A.JPG"), Ok("a.jpg"));
+        assert_eq!(found("a.png"), Ok("a.jpg"));
+        // Two images share the stem b.
         assert_eq!(found("b"), Err(2));
-        assert_eq!(found("a.png"), Err(0));
+        assert_eq!(found("b.gif"), Err(2));
         assert_eq!(found("c.jpg"), Err(0));
     }
 
@@ -753,10 +993,14 @@ mod tests {
             .map(|m| (m.object.as_str(), m.regions.len()))
             .collect();
         assert_eq!(got, [("mug", 2), ("object", 1)]);
-        let e = frame_labels(&opts, Path::new("l.csv"), &rows["a.png"], &h, (6, 6)).unwrap_err();
+        // A pixel past the edge is clipped; two are an error.
+        let l = frame_labels(&opts, Path::new("l.csv"), &rows["a.png"], &h, (6, 6)).unwrap();
+        let r = l[1].regions[0];
+        assert_eq!((r.x_offset, r.y_offset, r.width, r.height), (5, 5, 1, 1));
+        let e = frame_labels(&opts, Path::new("l.csv"), &rows["a.png"], &h, (5, 5)).unwrap_err();
         assert_eq!(
             e.to_string(),
-            "l.csv:2: box x 5 y 5 2 x 2 leaves the 6 x 6 image"
+            "l.csv:2: box x 5 y 5 2 x 2 leaves the 5 x 5 image"
         );
     }
 }

@@ -26,6 +26,10 @@ pub enum Matching {
     /// The names are numbers but do not all fall within the trajectory's time span (frame
     /// numbers, not times): matched in order as [`Matching::InOrder`], and this says why.
     InOrderNotStamps(String),
+    /// Most file names are decimal seconds within the trajectory and were posed at their
+    /// stamps; these images (names, in file order), before its first pose or after its last
+    /// (frames structure-from-motion did not register), were left out.
+    FileNameStampsWithout(Vec<String>),
 }
 
 /// The frames of a TUM import: the images of `images_dir`, stamped by their names when every
@@ -45,10 +49,9 @@ pub(super) fn tum_frames(
     let traj = parse_trajectory(trajectory, &text)?;
     let images = list_images(images_dir)?;
     let (posed, matching) = pose_images(trajectory, images_dir, &traj, &images)?;
-    let mut frames: Vec<Frame> = images
+    let mut frames: Vec<Frame> = posed
         .into_iter()
-        .zip(posed)
-        .map(|(path, (stamp_ns, world_from_camera))| Frame {
+        .map(|(path, stamp_ns, world_from_camera)| Frame {
             path,
             stamp_ns,
             world_from_camera,
@@ -59,6 +62,9 @@ pub(super) fn tum_frames(
     frames.sort_by_key(|f| f.stamp_ns);
     Ok((frames, matching))
 }
+
+/// An image, its stamp (ns) and its camera pose in the trajectory's world.
+type PosedImage = (PathBuf, i64, Iso3);
 
 /// One trajectory line: camera pose in the world frame at a stamp.
 #[derive(Debug, Clone, PartialEq)]
@@ -177,17 +183,19 @@ fn pose_at(traj: &[TrajectoryPose], stamp_ns: i64) -> Result<Iso3, String> {
         })
 }
 
-/// (stamp, pose) per image (in the order of `images`), and how they were matched. Numeric
-/// names are stamps when every one falls within the trajectory; when one does not and there
-/// are as many images as lines, they are frame numbers (`1.jpg` ... `43.jpg` against a
-/// trajectory timed 0 ... 42) and the images are matched in order, saying so; with a
-/// different count the error says both why the stamps fail and that the counts differ.
+/// (image, stamp, pose) per image posed (in the order of `images`), and how they were
+/// matched. Numeric names are stamps when every one falls within the trajectory, or when
+/// most do and the others lie beyond its ends (left out, said by the matching); otherwise,
+/// when there are as many images as lines, they are frame numbers (`1.jpg` ... `43.jpg`
+/// against a trajectory timed 0 ... 42) and the images are matched in order, saying so;
+/// with a different count the error says both why the stamps fail and that the counts
+/// differ.
 fn pose_images(
     trajectory: &Path,
     images_dir: &Path,
     traj: &[TrajectoryPose],
     images: &[PathBuf],
-) -> Result<(Vec<(i64, Iso3)>, Matching), ImportError> {
+) -> Result<(Vec<PosedImage>, Matching), ImportError> {
     let stems: Option<Vec<i64>> = images
         .iter()
         .map(|p| {
@@ -199,7 +207,10 @@ fn pose_images(
     let mut matching = Matching::InOrder;
     if let Some(stamps) = stems {
         match posed_by_stamps(traj, images, &stamps) {
-            Ok(posed) => return Ok((posed, Matching::FileNameStamps)),
+            Ok((posed, without)) if without.is_empty() => {
+                return Ok((posed, Matching::FileNameStamps));
+            }
+            Ok((posed, without)) => return Ok((posed, Matching::FileNameStampsWithout(without))),
             // Neither way works: say both, since which one the user meant is not known.
             Err(e) if images.len() != traj.len() => {
                 return Err(ImportError::File(CaptureError::Invalid {
@@ -261,32 +272,43 @@ fn pose_images(
             ),
         }));
     }
-    let posed = traj
+    let posed = images
         .iter()
-        .map(|t| (t.stamp_ns, t.world_from_camera))
+        .zip(traj)
+        .map(|(p, t)| (p.clone(), t.stamp_ns, t.world_from_camera))
         .collect();
     Ok((posed, matching))
 }
 
-/// Each image posed at the stamp its name gives; the first that falls outside the
-/// trajectory is the error.
+/// Each image posed at the stamp its name gives, and the names of those beyond the
+/// trajectory's ends, when more than half fall within it and the trajectory has another
+/// count of lines than there are images (one from structure-from-motion often lacks the
+/// first or last frames); otherwise the first that falls outside is the error.
 fn posed_by_stamps(
     traj: &[TrajectoryPose],
     images: &[PathBuf],
     stamps: &[i64],
-) -> Result<Vec<(i64, Iso3)>, ImportError> {
-    images
-        .iter()
-        .zip(stamps)
-        .map(|(p, s)| {
-            pose_at(traj, *s).map(|pose| (*s, pose)).map_err(|what| {
-                ImportError::File(CaptureError::Invalid {
-                    path: p.clone(),
-                    what,
-                })
-            })
-        })
-        .collect()
+) -> Result<(Vec<PosedImage>, Vec<String>), ImportError> {
+    let mut posed = Vec::with_capacity(images.len());
+    let mut without = Vec::new();
+    let mut first_error = None;
+    for (p, &s) in images.iter().zip(stamps) {
+        match pose_at(traj, s) {
+            Ok(pose) => posed.push((p.clone(), s, pose)),
+            Err(what) => {
+                first_error.get_or_insert_with(|| (p.clone(), what));
+                without.push(super::name_of(p));
+            }
+        }
+    }
+    match first_error {
+        // As many images as lines: frame numbers rather than times (the caller matches
+        // them in order), unless every one is a time.
+        Some((path, what)) if 2 * posed.len() <= images.len() || images.len() == traj.len() => {
+            Err(ImportError::File(CaptureError::Invalid { path, what }))
+        }
+        _ => Ok((posed, without)),
+    }
 }
 
 #[cfg(test)]
@@ -357,6 +379,47 @@ mod tests {
             e.contains("2 poses for 3 images") && e.contains("zz.png is not a time"),
             "{e}"
         );
+    }
+
+    /// Structure-from-motion left the first and last frames unposed: images named by their
+    /// stamps beyond the trajectory's ends are left out and named; with as many images as
+    /// lines, or most of them outside, the names are not taken as times.
+    #[test]
+    fn images_beyond_the_trajectory_are_left_out_when_most_are_within() {
+        let p = Path::new("t");
+        let t = parse_trajectory(
+            p,
+            "1.0 0 0 0 0 0 0 1\n2.0 2 0 0 0 0 0 1\n3.0 4 0 0 0 0 0 1\n",
+        )
+        .unwrap();
+        let dir = Path::new("imgs");
+        let names: Vec<PathBuf> = ["0.5", "1.0", "1.5", "2.0", "2.5", "9.0"]
+            .iter()
+            .map(|n| PathBuf::from(format!("{n}.png")))
+            .collect();
+        let (posed, how) = pose_images(p, dir, &t, &names).unwrap();
+        assert_eq!(
+            how,
+            Matching::FileNameStampsWithout(vec!["0.5.png".into(), "9.0.png".into()])
+        );
+        let stamps: Vec<i64> = posed.iter().map(|(_, s, _)| *s).collect();
+        assert_eq!(
+            stamps,
+            [1_000_000_000, 1_500_000_000, 2_000_000_000, 2_500_000_000]
+        );
+        assert!((posed[1].2.translation.x - 1.0).abs() < 1e-12);
+        // Half outside: an error naming the first.
+        let e = pose_images(p, dir, &t, &names[..2])
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("0.5.png") && e.contains("outside the trajectory"),
+            "{e}"
+        );
+        // As many images as lines: frame numbers, matched in order.
+        let three: Vec<PathBuf> = names[3..].to_vec();
+        let (_, how) = pose_images(p, dir, &t, &three).unwrap();
+        assert!(matches!(how, Matching::InOrderNotStamps(_)), "{how:?}");
     }
 
     #[test]
