@@ -177,6 +177,10 @@ fn print_score(report: &str, s: &RectScore, located: usize) {
             t.residual_max,
             t.size
         ),
+        None if s.frames_wholly_in_view >= 2 => say!(
+            "  not triangulated: the rays through the centres of the {} rectangles wholly in view do not meet in front of the cameras (parallel, or meeting behind them: poses in OpenGL camera axes, or world-to-camera?)",
+            s.frames_wholly_in_view
+        ),
         None => say!("  not triangulated: fewer than 2 frames have the object wholly in view"),
     }
     match (s.located, s.error, s.error_fraction) {

@@ -67,6 +67,10 @@ pub struct RectScore {
     pub error_fraction: Option<f64>,
     /// Frames with a rectangle of the object.
     pub frames: usize,
+    /// Of those, frames whose rectangle holds the object wholly in view (clear of the image's
+    /// border): with two or more and no triangulated centre, their rays meet behind the
+    /// cameras.
+    pub frames_wholly_in_view: usize,
     /// Of those, frames whose rectangle contains the located centre's projection.
     pub frames_inside: usize,
 }
@@ -191,6 +195,10 @@ pub fn score(
         error,
         error_fraction,
         frames: views.len(),
+        frames_wholly_in_view: views
+            .iter()
+            .filter(|v| wholly_in_view(&v.roi, &cam.camera))
+            .count(),
         frames_inside,
     }
 }

@@ -77,7 +77,10 @@ pub struct TrajectoryPose {
     pub line: usize,
 }
 
-/// Parses decimal seconds (`1305031102.175304`, `12`, `-0.5`) into nanoseconds exactly.
+/// Parses decimal seconds (`1305031102.175304`, `12`, `-0.5`) into nanoseconds exactly; a
+/// whole number of 17 to 19 digits is nanoseconds already (`1700000000500000000`: ROS
+/// stamps, as frames extracted from a bag are named), since as seconds it would lie
+/// thousands of millennia ahead.
 pub fn parse_seconds_ns(s: &str) -> Option<i64> {
     let (neg, body) = match s.strip_prefix('-') {
         Some(b) => (true, b),
@@ -88,6 +91,10 @@ pub fn parse_seconds_ns(s: &str) -> Option<i64> {
         return None;
     }
     let digits = |t: &str| t.bytes().all(|b| b.is_ascii_digit());
+    if !body.contains('.') && (17..=19).contains(&int.len()) && digits(int) {
+        let ns: i64 = int.parse().ok()?;
+        return Some(if neg { -ns } else { ns });
+    }
     if !digits(int) || !digits(frac) || frac.len() > 9 || int.len() > 10 {
         return None;
     }
@@ -126,8 +133,12 @@ pub fn parse_trajectory(path: &Path, text: &str) -> Result<Vec<TrajectoryPose>, 
                 fields.len()
             )));
         }
-        let stamp_ns = parse_seconds_ns(fields[0])
-            .ok_or_else(|| err(format!("timestamp {:?} is not decimal seconds", fields[0])))?;
+        let stamp_ns = parse_seconds_ns(fields[0]).ok_or_else(|| {
+            err(format!(
+                "timestamp {:?} is neither decimal seconds nor whole nanoseconds",
+                fields[0]
+            ))
+        })?;
         let mut v = [0.0f64; 7];
         for (k, f) in fields[1..].iter().enumerate() {
             v[k] = f
@@ -330,6 +341,17 @@ mod tests {
         assert_eq!(parse_seconds_ns("9223372036.854775807"), Some(i64::MAX));
         assert_eq!(parse_seconds_ns("9223372036.854775808"), None);
         assert_eq!(parse_seconds_ns("9999999999"), None);
+        // Whole nanoseconds, as ROS stamps name frames extracted from a bag.
+        assert_eq!(
+            parse_seconds_ns("1700000000500000000"),
+            Some(1_700_000_000_500_000_000)
+        );
+        assert_eq!(parse_seconds_ns("9223372036854775808"), None);
+        assert_eq!(
+            parse_seconds_ns("17000000005000000"),
+            Some(17_000_000_005_000_000)
+        );
+        assert_eq!(parse_seconds_ns("170000000050000"), None);
     }
 
     #[test]
