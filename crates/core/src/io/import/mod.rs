@@ -234,8 +234,12 @@ fn capture_frames(mut images: Vec<PosedImage>) -> Vec<Frame> {
         .collect()
 }
 
-/// The frames to write and, for a TUM import, how images were matched to poses.
-fn frames(poses: &PoseFile) -> Result<(Vec<Frame>, Option<Matching>), ImportError> {
+/// The frames to write and, for a TUM import, how images were matched to poses and what
+/// to note about the trajectory.
+type Framed = (Vec<Frame>, Option<Matching>, Option<String>);
+
+/// [`Framed`] of the pose file.
+fn frames(poses: &PoseFile) -> Result<Framed, ImportError> {
     use crate::io::capture::{read_colmap, read_idr, read_llff, read_nerf};
     let posed = match poses {
         PoseFile::Tum {
@@ -247,8 +251,8 @@ fn frames(poses: &PoseFile) -> Result<(Vec<Frame>, Option<Matching>), ImportErro
             let first = list_images(images)?;
             let size = crate::io::capture::image_size(&first[0])?;
             let intrinsics = tum_intrinsics(trajectory, *camera, *distortion, size)?;
-            let (frames, matching) = tum::tum_frames(trajectory, images, intrinsics)?;
-            return Ok((frames, Some(matching)));
+            let (frames, matching, note) = tum::tum_frames(trajectory, images, intrinsics)?;
+            return Ok((frames, Some(matching), note));
         }
         PoseFile::Nerf { transforms } => read_nerf(transforms)?,
         PoseFile::Colmap { model, images } => read_colmap(model, images)?,
@@ -262,7 +266,7 @@ fn frames(poses: &PoseFile) -> Result<(Vec<Frame>, Option<Matching>), ImportErro
             crop,
         } => read_idr(cameras, images, *crop)?,
     };
-    Ok((capture_frames(posed), None))
+    Ok((capture_frames(posed), None, None))
 }
 
 /// The `--camera` intrinsics of a TUM import, refused unless a pinhole camera.
@@ -306,7 +310,7 @@ pub fn import(
     out: &Path,
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<ImportStats, ImportError> {
-    let (frames, tum_matching) = frames(&opts.poses)?;
+    let (frames, tum_matching, trajectory_note) = frames(&opts.poses)?;
     check_stamps(&frames)?;
     let left_out = match &tum_matching {
         Some(Matching::FileNameStampsWithout(names)) => names.as_slice(),
@@ -329,6 +333,7 @@ pub fn import(
             .count(),
         notes: camera_note(opts, &frames)
             .into_iter()
+            .chain(trajectory_note)
             .chain(pose_notes(&frames))
             .chain(labels.as_ref().and_then(|l| scale_note(&l.1, &frames)))
             .collect(),

@@ -39,7 +39,7 @@ pub(super) fn tum_frames(
     trajectory: &Path,
     images_dir: &Path,
     intrinsics: Intrinsics,
-) -> Result<(Vec<Frame>, Matching), ImportError> {
+) -> Result<(Vec<Frame>, Matching, Option<String>), ImportError> {
     let text = std::fs::read_to_string(trajectory).map_err(|source| {
         ImportError::File(CaptureError::Io {
             path: trajectory.into(),
@@ -60,7 +60,49 @@ pub(super) fn tum_frames(
         .collect();
     // Names that are stamps go in time order, however they are spelt (`0.5` and `1.25`).
     frames.sort_by_key(|f| f.stamp_ns);
-    Ok((frames, matching))
+    let note = match matching {
+        Matching::FileNameStamps | Matching::FileNameStampsWithout(_) => {
+            bridged_note(&traj, &frames)
+        }
+        _ => None,
+    };
+    Ok((frames, matching, note))
+}
+
+/// A gap between trajectory lines wider than this many times the median spacing (and than
+/// [`MIN_GAP_NOTED_NS`]) is noted when images are posed inside it.
+const GAP_FACTOR: i64 = 5;
+/// ... and wider than this.
+const MIN_GAP_NOTED_NS: i64 = 500_000_000;
+
+/// A note when frames are posed by interpolation across a gap in the trajectory much wider
+/// than its usual spacing (frames structure-from-motion did not register in mid-sequence):
+/// a straight line and a uniform turn across seconds of a hand-held camera's motion.
+fn bridged_note(traj: &[TrajectoryPose], frames: &[Frame]) -> Option<String> {
+    let mut spacing: Vec<i64> = traj
+        .windows(2)
+        .map(|w| w[1].stamp_ns - w[0].stamp_ns)
+        .collect();
+    spacing.sort_unstable();
+    let median = *spacing.get(spacing.len() / 2)?;
+    let wide = (GAP_FACTOR.saturating_mul(median)).max(MIN_GAP_NOTED_NS);
+    let gap_of = |t: i64| {
+        let i = traj.partition_point(|p| p.stamp_ns <= t);
+        (i > 0 && i < traj.len() && traj[i - 1].stamp_ns != t)
+            .then(|| traj[i].stamp_ns - traj[i - 1].stamp_ns)
+    };
+    let gaps: Vec<i64> = frames
+        .iter()
+        .filter_map(|f| gap_of(f.stamp_ns))
+        .filter(|&g| g > wide)
+        .collect();
+    let longest = *gaps.iter().max()?;
+    Some(format!(
+        "{} image(s) are posed by interpolating across gaps in the trajectory of up to {:.1} s (its lines are usually {:.3} s apart): a straight line and an even turn across the gap, which a hand-held camera rarely moves along (frames structure-from-motion did not register?)",
+        gaps.len(),
+        longest as f64 * 1e-9,
+        median as f64 * 1e-9
+    ))
 }
 
 /// An image, its stamp (ns) and its camera pose in the trajectory's world.
@@ -442,6 +484,38 @@ mod tests {
         let three: Vec<PathBuf> = names[3..].to_vec();
         let (_, how) = pose_images(p, dir, &t, &three).unwrap();
         assert!(matches!(how, Matching::InOrderNotStamps(_)), "{how:?}");
+    }
+
+    /// Frames inside a 3 s hole of a 10 Hz trajectory are noted; frames on its lines, or
+    /// between lines the usual spacing apart, are not.
+    #[test]
+    fn frames_bridging_a_wide_gap_are_noted() {
+        let lines: String = (0..10)
+            .chain(40..50)
+            .map(|k| format!("{}.{} {k} 0 0 0 0 0 1\n", k / 10, k % 10))
+            .collect();
+        let traj = parse_trajectory(Path::new("t"), &lines).unwrap();
+        let frame = |stamp_ns: i64| Frame {
+            path: "f.png".into(),
+            stamp_ns,
+            world_from_camera: Iso3::identity(),
+            intrinsics: Intrinsics {
+                camera: crate::types::geometry::Camera::with_hfov(8, 8, 1.0),
+                distortion: Default::default(),
+            },
+        };
+        let on_lines: Vec<Frame> = [0, 100_000_000, 450_000_000, 4_000_000_000]
+            .map(frame)
+            .into();
+        assert_eq!(bridged_note(&traj, &on_lines), None);
+        let in_hole: Vec<Frame> = [2_000_000_000, 2_500_000_000, 4_050_000_000]
+            .map(frame)
+            .into();
+        let note = bridged_note(&traj, &in_hole).unwrap();
+        assert!(
+            note.starts_with("2 image(s) are posed by interpolating across gaps in the trajectory of up to 3.1 s (its lines are usually 0.100 s apart)"),
+            "{note}"
+        );
     }
 
     #[test]
