@@ -73,7 +73,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 
     say!("== fusing {}", tour_path.display());
     let report_path = args.out.join("report.json");
-    let f = fuse(
+    let mut f = fuse(
         &tour_path,
         &model_path,
         &args.fuse,
@@ -83,7 +83,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     )
     .context("demo: fuse")?;
     let grid_path = args.out.join("grid.npy");
-    write_outputs(&f, Some(&report_path), Some(&grid_path))?;
+    write_outputs(&mut f, Some(&report_path), Some(&grid_path))?;
     print_summary(&f);
 
     if let Some(e) = evaluation(&f, &report_path) {
@@ -166,7 +166,7 @@ fn drift(args: &Args, path: &Path, model_path: &Path) -> anyhow::Result<()> {
             sigma_w: DRIFT_SIGMA_W_RADPS,
             ..args.fuse.clone()
         };
-        let f = fuse(
+        let mut f = fuse(
             path,
             model_path,
             &fuse_args,
@@ -175,7 +175,7 @@ fn drift(args: &Args, path: &Path, model_path: &Path) -> anyhow::Result<()> {
             &crate::viz::rrd_beside(&report_path),
         )
         .with_context(|| format!("demo: fuse {name}"))?;
-        write_outputs(&f, Some(&report_path), None)?;
+        write_outputs(&mut f, Some(&report_path), None)?;
         if let Some(e) = evaluation(&f, &report_path) {
             rows.push((name, e));
         }

@@ -257,6 +257,9 @@ pub struct Fused {
     /// How far from the camera a frame's update reaches (`--max-footprint`), metres; None
     /// without a limit.
     pub update_range_m: Option<f64>,
+    /// The saved recording, whole but not yet renamed: it goes into place with the report
+    /// and the grid ([`write_outputs`]), or not at all.
+    pub staged: objloc_core::io::output::Staged,
 }
 
 /// Loads the model and session, replays, and builds the report.
@@ -318,8 +321,9 @@ pub fn fuse(
             return Err(anyhow::Error::new(e).context("fusing"));
         }
     };
-    if let Some(p) = stream.finish()? {
-        super::say_recording(&p);
+    let mut staged = objloc_core::io::output::Staged::default();
+    if let Some((partial, path)) = stream.finish_staged()? {
+        staged.adopt(partial, path);
     }
     let t_replay = t1.elapsed();
     let mut timing = BTreeMap::new();
@@ -346,6 +350,7 @@ pub fn fuse(
         outcome,
         report,
         update_range_m,
+        staged,
     })
 }
 
@@ -411,40 +416,61 @@ fn check_grid_flags(args: &FuseArgs) -> anyhow::Result<()> {
 
 /// Writes the report and grid where asked; the grid's size is checked before anything is
 /// written.
-pub fn write_outputs(f: &Fused, report: Option<&Path>, grid: Option<&Path>) -> anyhow::Result<()> {
+pub fn write_outputs(
+    f: &mut Fused,
+    report: Option<&Path>,
+    grid: Option<&Path>,
+) -> anyhow::Result<()> {
     // Every file before any line of text: a reader that goes away (`fuse ... | head -1`)
-    // ends the command on its next line (SIGPIPE), which must not lose a file.
+    // ends the command on its next line (SIGPIPE), which must not lose a file. All are
+    // renamed into place together once all are written.
+    let mut staged = std::mem::take(&mut f.staged);
+    let recording = staged.targets().next().map(Path::to_path_buf);
     if let Some(p) = report {
-        objloc_core::io::output::write_atomic_with(p, |w| f.report.write_json(w))
+        staged
+            .write_with(p, |w| f.report.write_json(w))
             .with_context(|| format!("writing the report {}", p.display()))?;
     }
+    let mut said = None;
     if let Some(p) = grid {
         let g = &f.outcome.grid;
         let region = g
             .export_region(MAX_EXPORT_BYTES)
             .with_context(|| format!("--grid {}", p.display()))?;
-        let [a, b, c] = region.dims;
-        write_grid(g, &region, p).with_context(|| format!("writing the grid {}", p.display()))?;
-        if region.dims != g.spec.dims {
-            let e = f.report.grid.export.as_ref();
-            let o = e.map_or([0.0; 3], |e| e.origin_m);
-            let [i, j, k] = region.first_cell;
-            say!(
-                "grid {}: cells {i}..{}, {j}..{}, {k}..{} of the {} x {} x {} grid (the stored blocks), shape ({a}, {b}, {c}), min corner ({:.3}, {:.3}, {:.3}) m",
-                p.display(),
-                i + a,
-                j + b,
-                k + c,
-                g.spec.dims[0],
-                g.spec.dims[1],
-                g.spec.dims[2],
-                o[0],
-                o[1],
-                o[2]
-            );
-        }
+        write_grid(g, &region, p, &mut staged)
+            .with_context(|| format!("writing the grid {}", p.display()))?;
+        said = (region.dims != g.spec.dims).then(|| export_line(f, &region, p));
+    }
+    staged.commit().context("renaming the outputs into place")?;
+    if let Some(p) = recording {
+        super::say_recording(&p);
+    }
+    if let Some(line) = said {
+        say!("{line}");
     }
     Ok(())
+}
+
+/// What stdout says of a grid exported as its stored region only.
+fn export_line(f: &Fused, region: &objloc_core::fuse::grid::Region, p: &Path) -> String {
+    let g = &f.outcome.grid;
+    let [a, b, c] = region.dims;
+    let e = f.report.grid.export.as_ref();
+    let o = e.map_or([0.0; 3], |e| e.origin_m);
+    let [i, j, k] = region.first_cell;
+    format!(
+        "grid {}: cells {i}..{}, {j}..{}, {k}..{} of the {} x {} x {} grid (the stored blocks), shape ({a}, {b}, {c}), min corner ({:.3}, {:.3}, {:.3}) m",
+        p.display(),
+        i + a,
+        j + b,
+        k + c,
+        g.spec.dims[0],
+        g.spec.dims[1],
+        g.spec.dims[2],
+        o[0],
+        o[1],
+        o[2]
+    )
 }
 
 /// Bytes of x-slabs [`write_grid`] holds at a time (at least one slab, at most eight).
@@ -457,6 +483,7 @@ fn write_grid(
     grid: &objloc_core::fuse::grid::Grid,
     region: &objloc_core::fuse::grid::Region,
     path: &Path,
+    staged: &mut objloc_core::io::output::Staged,
 ) -> anyhow::Result<()> {
     use rayon::prelude::*;
     let first = region.first_cell[0];
@@ -469,7 +496,7 @@ fn write_grid(
             .map(|&i| grid.probability_slab(region, i))
             .collect::<Vec<_>>()
     });
-    objloc_core::io::npy::write_parts(path, &region.dims, parts)?;
+    objloc_core::io::npy::write_parts_staged(staged, path, &region.dims, parts)?;
     Ok(())
 }
 
@@ -665,7 +692,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         &[("session", &args.session), ("--model", &args.model)],
         &outputs,
     )?;
-    let f = fuse(
+    let mut f = fuse(
         &args.session,
         &args.model,
         &args.fuse,
@@ -674,7 +701,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         &default_rrd,
     )
     .context("fuse")?;
-    write_outputs(&f, args.report.as_deref(), args.grid.as_deref())?;
+    write_outputs(&mut f, args.report.as_deref(), args.grid.as_deref())?;
     print_summary(&f);
     let t = &f.report.timing_ms;
     say!(

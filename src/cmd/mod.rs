@@ -168,19 +168,37 @@ pub(crate) fn usage_check(ok: bool, message: impl FnOnce() -> String) -> anyhow:
 }
 
 /// `p` as the file system resolves it, to compare outputs with inputs: canonical where it
-/// exists, else its directory's canonical path joined with its name.
+/// exists, else its longest existing ancestor's canonical path with the rest applied
+/// lexically. A directory not made yet is no symlink, so `new/../s.mcap` is `s.mcap`: with
+/// only the parent canonicalised, `--report new/../s.mcap` passed as another file and
+/// replaced the session with the report.
 fn resolved(p: &Path) -> PathBuf {
+    use std::path::Component;
     if let Ok(c) = p.canonicalize() {
         return c;
     }
-    let dir = p
-        .parent()
-        .filter(|d| !d.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
-    match (dir.canonicalize(), p.file_name()) {
-        (Ok(d), Some(name)) => d.join(name),
-        _ => p.to_path_buf(),
+    let parts: Vec<Component> = p.components().collect();
+    for k in (0..parts.len()).rev() {
+        let head: PathBuf = parts[..k].iter().collect();
+        let head = if head.as_os_str().is_empty() {
+            PathBuf::from(".")
+        } else {
+            head
+        };
+        if let Ok(mut c) = head.canonicalize() {
+            for part in &parts[k..] {
+                match part {
+                    Component::ParentDir => {
+                        c.pop();
+                    }
+                    Component::CurDir => {}
+                    other => c.push(other.as_os_str()),
+                }
+            }
+            return c;
+        }
     }
+    p.to_path_buf()
 }
 
 /// Before any work: refuses an output that is one of the inputs (it would be overwritten,

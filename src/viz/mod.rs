@@ -292,6 +292,22 @@ impl VizStream {
     /// Flushes and closes the recording; a saved file is renamed into place and its path
     /// returned.
     pub fn finish(self) -> Result<Option<PathBuf>, VizError> {
+        match self.finish_staged()? {
+            Some((partial, path)) => {
+                std::fs::rename(&partial, &path).map_err(|source| VizError::Rename {
+                    from: partial.display().to_string(),
+                    to: path.display().to_string(),
+                    source,
+                })?;
+                Ok(Some(path))
+            }
+            None => Ok(None),
+        }
+    }
+
+    /// Flushes and closes the recording; a saved file is left whole as its `.partial` file,
+    /// returned with its final path, for the command to rename with its other outputs.
+    pub fn finish_staged(self) -> Result<Option<(PathBuf, PathBuf)>, VizError> {
         self.rec
             .flush_blocking()
             .map_err(|e| VizError::Flush(e.to_string()))?;
@@ -309,17 +325,7 @@ impl VizStream {
         // Dropping the last handle closes the file sink, which writes the footer and joins
         // its writer thread; only then is the file complete.
         drop(self.rec);
-        match self.file {
-            Some((partial, path)) => {
-                std::fs::rename(&partial, &path).map_err(|source| VizError::Rename {
-                    from: partial.display().to_string(),
-                    to: path.display().to_string(),
-                    source,
-                })?;
-                Ok(Some(path))
-            }
-            None => Ok(None),
-        }
+        Ok(self.file)
     }
 }
 

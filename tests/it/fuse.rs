@@ -713,6 +713,92 @@ fn copy_without_topic(src: &std::path::Path, dst: &std::path::Path, topic: &str)
     w.finish().unwrap();
 }
 
+/// `src` with its /tf_static mount moved to /tf, published with every /odom message at its
+/// stamp (a bag that missed the latched /tf_static, with a driver that streams the mount).
+fn copy_with_mount_on_tf(src: &std::path::Path, dst: &std::path::Path) {
+    use objloc_core::io::msgs::{RosMessage, TfMessage};
+    let bytes = std::fs::read(src).unwrap();
+    let mut messages: Vec<mcap::Message> = mcap::MessageStream::new(&bytes)
+        .unwrap()
+        .map(Result::unwrap)
+        .collect();
+    let i = messages
+        .iter()
+        .position(|m| m.channel.topic == "/tf_static")
+        .unwrap();
+    let stat = messages.remove(i);
+    let mount = TfMessage::from_cdr(&stat.data).unwrap();
+    let file = std::io::BufWriter::new(std::fs::File::create(dst).unwrap());
+    let mut w = mcap::Writer::new(file).unwrap();
+    let schema = stat.channel.schema.as_ref().unwrap();
+    let schema_id = w
+        .add_schema(&schema.name, &schema.encoding, &schema.data)
+        .unwrap();
+    let tf = w
+        .add_channel(
+            schema_id,
+            "/tf",
+            &stat.channel.message_encoding,
+            &Default::default(),
+        )
+        .unwrap();
+    for (seq, m) in messages.iter().enumerate() {
+        w.write(m).unwrap();
+        if m.channel.topic != "/odom" {
+            continue;
+        }
+        let stamp = objloc_core::io::msgs::Odometry::from_cdr(&m.data)
+            .unwrap()
+            .header
+            .stamp_ns;
+        let mut at = mount.clone();
+        for t in &mut at.transforms {
+            t.header.stamp_ns = stamp;
+        }
+        let header = mcap::records::MessageHeader {
+            channel_id: tf,
+            sequence: seq as u32,
+            log_time: m.log_time,
+            publish_time: m.publish_time,
+        };
+        w.write_to_known_channel(&header, &at.to_cdr()).unwrap();
+    }
+    w.finish().unwrap();
+}
+
+/// A mount on /tf alone (no /tf_static, as a bag that missed the latched topic has it)
+/// locates the chair as the original does: /tf_static was required, though /tf had the mount.
+#[test]
+fn a_mount_on_tf_alone_is_chained_like_a_static_one() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = train(dir.path());
+    let tour = repo_dir().join("recordings/chair-tour.mcap");
+    let moved = dir.path().join("tf-only.mcap");
+    copy_with_mount_on_tf(&tour, &moved);
+    let inspect = ok(&objloc(&["inspect", p(&moved)], &[]));
+    assert!(
+        inspect.contains("/tf ") && !inspect.contains("/tf_static "),
+        "{inspect}"
+    );
+    let mut centres = Vec::new();
+    for session in [&tour, &moved] {
+        let report = dir.path().join("r.json");
+        let args = [
+            "fuse",
+            p(session),
+            "--model",
+            p(&model),
+            "--report",
+            p(&report),
+            "--no-rerun",
+        ];
+        ok(&objloc(&args, &[]));
+        centres.push(json(&report)["objects"][0]["centroid_m"].clone());
+        assert!(json_eval(session, &report).is_some_and(|e| e < 0.02));
+    }
+    assert_eq!(centres[0], centres[1]);
+}
+
 /// The chair's error in `objloc eval --json`, if it was found.
 fn json_eval(session: &std::path::Path, report: &std::path::Path) -> Option<f64> {
     let out = ok(&objloc(
@@ -789,7 +875,9 @@ fn outputs_never_overwrite_inputs_or_each_other() {
     let before = std::fs::read(&session).unwrap();
     let same_json = dir.path().join("rg.json");
     let col = dir.path().join("col.rrd");
-    let cases: [(Vec<&str>, &str); 5] = [
+    // Through a directory not made yet: `new/../s.mcap` is the session.
+    let through_new = dir.path().join("new").join("..").join("s.mcap");
+    let cases: [(Vec<&str>, &str); 6] = [
         (
             vec![
                 "fuse",
@@ -799,6 +887,18 @@ fn outputs_never_overwrite_inputs_or_each_other() {
                 "--no-rerun",
                 "--report",
                 p(&session),
+            ],
+            "is the session: writing it would destroy it",
+        ),
+        (
+            vec![
+                "fuse",
+                p(&session),
+                "--model",
+                p(&model),
+                "--no-rerun",
+                "--report",
+                p(&through_new),
             ],
             "is the session: writing it would destroy it",
         ),

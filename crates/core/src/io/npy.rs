@@ -113,30 +113,67 @@ pub fn write_parts<T: NpyElem>(
     shape: &[usize],
     parts: impl Iterator<Item = Vec<T>>,
 ) -> Result<(), NpyError> {
-    let io = |source| NpyError::Io {
-        path: path.display().to_string(),
-        source,
-    };
-    let want: usize = shape.iter().product();
-    crate::io::output::write_atomic_with(path, |w| {
-        w.write_all(&header::<T>(shape))?;
-        let (mut n, mut bytes) = (0, Vec::new());
-        for part in parts {
-            n += part.len();
-            bytes.clear();
-            for v in part {
-                v.put(&mut bytes);
-            }
-            w.write_all(&bytes)?;
+    crate::io::output::write_atomic_with(path, |w| put_parts(w, shape, parts)).map_err(|source| {
+        NpyError::Io {
+            path: path.display().to_string(),
+            source,
         }
-        if n != want {
-            return Err(std::io::Error::other(format!(
-                "{n} values for a shape of {want}"
-            )));
-        }
-        Ok(())
     })
-    .map_err(io)
+}
+
+/// [`write_parts`] to `path`'s `.partial` file, renamed with the rest of `staged`.
+pub fn write_parts_staged<T: NpyElem>(
+    staged: &mut crate::io::output::Staged,
+    path: &Path,
+    shape: &[usize],
+    parts: impl Iterator<Item = Vec<T>>,
+) -> Result<(), NpyError> {
+    staged
+        .write_with(path, |w| put_parts(w, shape, parts))
+        .map_err(|source| NpyError::Io {
+            path: path.display().to_string(),
+            source,
+        })
+}
+
+/// The `.npy` header of `shape` and then the parts' values, checked to fill it.
+fn put_parts<T: NpyElem>(
+    w: &mut dyn std::io::Write,
+    shape: &[usize],
+    parts: impl Iterator<Item = Vec<T>>,
+) -> std::io::Result<()> {
+    let want: usize = shape.iter().product();
+    w.write_all(&header::<T>(shape))?;
+    let (mut n, mut bytes) = (0, Vec::new());
+    for part in parts {
+        n += part.len();
+        bytes.clear();
+        for v in part {
+            v.put(&mut bytes);
+        }
+        w.write_all(&bytes)?;
+    }
+    if n != want {
+        return Err(std::io::Error::other(format!(
+            "{n} values for a shape of {want}"
+        )));
+    }
+    Ok(())
+}
+
+/// [`write`] to `path`'s `.partial` file, renamed with the rest of `staged`.
+pub fn write_staged<T: NpyElem>(
+    staged: &mut crate::io::output::Staged,
+    path: &Path,
+    shape: &[usize],
+    data: &[T],
+) -> Result<(), NpyError> {
+    staged
+        .write_with(path, |w| w.write_all(&encode(shape, data)))
+        .map_err(|source| NpyError::Io {
+            path: path.display().to_string(),
+            source,
+        })
 }
 
 /// Writes `data` (C order) with `shape` to `path` as `.npy`, atomically: through a

@@ -79,6 +79,73 @@ pub fn write_atomic_with(
     result
 }
 
+/// The outputs of one command, each written whole to its `.partial` file and renamed into
+/// place together by [`Staged::commit`] once every one is written: a command that fails or is
+/// killed part way leaves none of them under its final name (a report stayed beside a grid
+/// that failed to write, and a recording beside a report that did). Dropped uncommitted, it
+/// removes the partial files.
+#[derive(Debug, Default)]
+pub struct Staged {
+    /// (partial file, final file), in the order they were staged.
+    files: Vec<(PathBuf, PathBuf)>,
+}
+
+impl Staged {
+    /// Writes what `fill` writes to `path`'s `.partial` file (see [`write_atomic_with`]),
+    /// to be renamed at [`Staged::commit`].
+    pub fn write_with(
+        &mut self,
+        path: &Path,
+        fill: impl FnOnce(&mut dyn Write) -> std::io::Result<()>,
+    ) -> std::io::Result<()> {
+        let (partial, target) = destination(path)?;
+        // Staged before it is written: a failure part way removes it with the others.
+        self.files.push((partial.clone(), target));
+        let mut w = std::io::BufWriter::with_capacity(1 << 20, std::fs::File::create(&partial)?);
+        fill(&mut w)?;
+        let f = w
+            .into_inner()
+            .map_err(std::io::IntoInnerError::into_error)?;
+        f.sync_all()
+    }
+
+    /// The final paths staged so far, in order.
+    pub fn targets(&self) -> impl Iterator<Item = &Path> {
+        self.files.iter().map(|(_, t)| t.as_path())
+    }
+
+    /// A file written whole elsewhere (`partial`, to become `target`), renamed with the rest.
+    pub fn adopt(&mut self, partial: PathBuf, target: PathBuf) {
+        self.files.push((partial, target));
+    }
+
+    /// Renames every staged file into place, in the order staged; their final paths.
+    pub fn commit(mut self) -> std::io::Result<Vec<PathBuf>> {
+        let files = std::mem::take(&mut self.files);
+        let mut done = Vec::with_capacity(files.len());
+        for (k, (partial, target)) in files.iter().enumerate() {
+            if let Err(e) = std::fs::rename(partial, target) {
+                // The rest stay partial, and are removed: only whole sets are final.
+                for (p, _) in &files[k..] {
+                    let _ = std::fs::remove_file(p);
+                }
+                return Err(e);
+            }
+            done.push(target.clone());
+        }
+        Ok(done)
+    }
+}
+
+impl Drop for Staged {
+    fn drop(&mut self) {
+        for (partial, _) in &self.files {
+            // Best effort: the command is already failing with its own error.
+            let _ = std::fs::remove_file(partial);
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -91,6 +158,31 @@ mod tests {
         assert_eq!(std::fs::read(&p).unwrap(), b"{}");
         assert!(!partial_path(&p).exists());
         assert_eq!(partial_path(&p).file_name().unwrap(), "a.json.partial");
+    }
+
+    /// Staged outputs appear together at the commit; a failure part way, or a drop before
+    /// the commit, leaves none of them and no partial file.
+    #[test]
+    fn staged_outputs_appear_together_or_not_at_all() {
+        let dir = tempfile::tempdir().unwrap();
+        let (a, b) = (dir.path().join("a.json"), dir.path().join("b.npy"));
+        let mut staged = Staged::default();
+        staged.write_with(&a, |w| w.write_all(b"{}")).unwrap();
+        staged.write_with(&b, |w| w.write_all(b"npy")).unwrap();
+        assert!(!a.exists() && !b.exists() && partial_path(&a).exists());
+        assert_eq!(staged.commit().unwrap(), [a.clone(), b.clone()]);
+        assert_eq!(std::fs::read(&b).unwrap(), b"npy");
+        assert!(!partial_path(&a).exists() && !partial_path(&b).exists());
+        // The second fails while being written: neither is left, nor a partial file.
+        let (c, d) = (dir.path().join("c.json"), dir.path().join("d.npy"));
+        let mut staged = Staged::default();
+        staged.write_with(&c, |w| w.write_all(b"{}")).unwrap();
+        let e = staged.write_with(&d, |_| Err(std::io::Error::other("disk full")));
+        assert!(e.is_err());
+        drop(staged);
+        for p in [&c, &d] {
+            assert!(!p.exists() && !partial_path(p).exists(), "{}", p.display());
+        }
     }
 
     /// A link is written through (it stays a link), a device is refused and left as it was.

@@ -725,13 +725,16 @@ impl SessionPrediction {
                 source: std::io::Error::other(other.to_string()),
             },
         };
-        crate::io::npy::write(
+        let mut staged = crate::io::output::Staged::default();
+        crate::io::npy::write_staged(
+            &mut staged,
             &dir.join("probs.npy"),
             &[self.maps.len(), rows, cols],
             &probs,
         )
         .map_err(npy)?;
-        crate::io::npy::write(
+        crate::io::npy::write_staged(
+            &mut staged,
             &dir.join("tile_probs.npy"),
             &[self.tile_maps.len(), rows, cols],
             &tile_probs,
@@ -753,13 +756,15 @@ impl SessionPrediction {
                 None => vec![-1; m.p.len()],
             })
             .collect();
-        crate::io::npy::write(
+        crate::io::npy::write_staged(
+            &mut staged,
             &dir.join("labels.npy"),
             &[self.maps.len(), rows, cols],
             &labels,
         )
         .map_err(npy)?;
-        crate::io::npy::write(
+        crate::io::npy::write_staged(
+            &mut staged,
             &dir.join("stamps.npy"),
             &[self.stamps_ns.len()],
             &self.stamps_ns,
@@ -781,9 +786,13 @@ impl SessionPrediction {
                         path: path.clone(),
                         source: std::io::Error::other(e.to_string()),
                     })?;
-                crate::io::output::write_atomic(&path, &png).map_err(io(&path))?;
+                staged
+                    .write_with(&path, |w| w.write_all(&png))
+                    .map_err(io(&path))?;
             }
         }
+        // The maps, labels and stamps go into place together, or none does.
+        staged.commit().map_err(io(dir))?;
         Ok(())
     }
 }

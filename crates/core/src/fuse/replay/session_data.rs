@@ -375,10 +375,41 @@ fn transform_iso(t: &crate::io::msgs::TransformStamped, at: &At) -> Result<Iso3,
     })
 }
 
+/// A warning when the command topic is empty but the file carries velocity commands under
+/// another name (`/mobile_base/cmd_vel`): the session would be fused as a capture, without
+/// a motion model, and only the `fitted` lines on stdout said why.
+fn commands_elsewhere(reader: &SessionReader) -> Option<String> {
+    let cmd_vel = reader.topics().get(Role::CmdVel);
+    if reader.count(cmd_vel) > 0 {
+        return None;
+    }
+    let twist = [
+        "geometry_msgs/msg/TwistStamped",
+        "geometry_msgs/TwistStamped",
+    ];
+    let others: Vec<&str> = reader
+        .channels()
+        .values()
+        .filter(|c| twist.contains(&c.schema_name.as_str()))
+        .map(|c| c.topic.as_str())
+        .collect();
+    let first = others.first()?;
+    Some(format!(
+        "{}: nothing on {cmd_vel}, but velocity commands on {}: fused without a motion model, as a capture (--topic cmd_vel={first} to use them)",
+        reader.path().display(),
+        others.join(", ")
+    ))
+}
+
 /// Pass 1: reads and validates everything but pixels.
 pub fn load_session(reader: &SessionReader) -> Result<SessionData, ReplayError> {
     reader.require(Role::CameraInfo)?;
-    reader.require(Role::TfStatic)?;
+    // The camera's mount may come on /tf alone (a bag often misses the latched
+    // /tf_static, and with an empty one the same file fused as the original): /tf_static is
+    // required only where /tf is empty.
+    if reader.count(reader.topics().get(Role::Tf)) == 0 {
+        reader.require(Role::TfStatic)?;
+    }
     reader.require(Role::Odom)?;
     reader.require_frames()?;
     let path = reader.path().display().to_string();
@@ -386,6 +417,7 @@ pub fn load_session(reader: &SessionReader) -> Result<SessionData, ReplayError> 
         warnings: reader.warnings.clone(),
         ..Collected::default()
     };
+    c.warnings.extend(commands_elsewhere(reader));
     // Messages are decoded one at a time from the reader's chunk cache: a frame's payload is
     // decoded here only for its header (stamp) and CDR check and dropped at once; its pixels
     // are decoded in pass 2, by their place in the file.

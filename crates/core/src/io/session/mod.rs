@@ -365,7 +365,7 @@ pub enum SessionError {
         what: String,
     },
     /// A topic the command needs holds no message.
-    #[error("{path}: required topic {topic} ({type_name}) is missing")]
+    #[error("{path}: required topic {topic} ({type_name}) is missing{why}")]
     MissingTopic {
         /// The session file.
         path: PathBuf,
@@ -373,6 +373,9 @@ pub enum SessionError {
         topic: String,
         /// The type the topic must carry, `pkg/msg/Type`.
         type_name: &'static str,
+        /// What the reader found wrong with the file, `; ...` (a file cut short holds
+        /// fewer topics than it was written with), or empty.
+        why: String,
     },
 }
 

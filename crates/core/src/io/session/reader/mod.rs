@@ -503,6 +503,7 @@ impl SessionReader {
                 path: self.path.clone(),
                 topic: topic.to_owned(),
                 type_name: role.message_type(),
+                why: self.why_missing(&[role]),
             });
         }
         Ok(())
@@ -515,8 +516,38 @@ impl SessionReader {
                 path: self.path.clone(),
                 topic: format!("{} or {}", self.topics.compressed_image, self.topics.image),
                 type_name: CompressedImage::TYPE,
+                why: self.why_missing(&[Role::CompressedImage, Role::Image]),
             });
         }
         Ok(())
+    }
+
+    /// The end of the error of a missing topic in one of `roles`: the topics that carry the
+    /// role's type under another name (`--topic` can name them), and what the reader warned
+    /// of (a file cut short in its first chunk said only that a topic was missing).
+    fn why_missing(&self, roles: &[Role]) -> String {
+        let mut why = String::new();
+        for role in roles {
+            let wanted = role.message_type();
+            // `pkg/Type` is how ROS 1 and some writers name `pkg/msg/Type`.
+            let short = wanted.replace("/msg/", "/");
+            let others: Vec<&str> = self
+                .channels
+                .values()
+                .filter(|c| c.schema_name == wanted || c.schema_name == short)
+                .map(|c| c.topic.as_str())
+                .collect();
+            if let Some(first) = others.first() {
+                why.push_str(&format!(
+                    "; the file has {wanted} on {} (--topic {}={first})",
+                    others.join(", "),
+                    role.key()
+                ));
+            }
+        }
+        if let Some(w) = self.warnings.first() {
+            why.push_str(&format!("; {w}"));
+        }
+        why
     }
 }
