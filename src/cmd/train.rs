@@ -447,6 +447,18 @@ fn load_sessions(
         .collect::<Result<Vec<_>, _>>()
         .context("train: reading sessions")?;
     super::print_warnings(sessions.iter().flat_map(|s| &s.warnings));
+    if args.object.is_none() {
+        let names: std::collections::BTreeSet<&String> =
+            sessions.iter().flat_map(|s| &s.label_objects).collect();
+        if names.len() > 1 {
+            let listed: Vec<&str> = names.iter().map(|n| n.as_str()).collect();
+            eprintln!(
+                "warning: the labels name {} objects ({}), trained as one: the model fires on all of them and its objects carry no name (--object NAME trains one)",
+                names.len(),
+                listed.join(", ")
+            );
+        }
+    }
     let mut frames = sessions.iter().flat_map(|s| &s.frames).peekable();
     if frames.peek().is_some() && frames.all(|f| is_grey(&f.image)) {
         eprintln!(

@@ -161,6 +161,8 @@ impl SessionData {
 #[derive(Default)]
 struct Collected {
     warnings: Vec<String>,
+    /// Raw frames recorded `mono8` (grey).
+    mono_frames: usize,
     /// Per topic, the quaternions that are not of unit length: count, and the first's place
     /// and length (normalised and used, and said once per topic).
     unnormalised: BTreeMap<String, (usize, At, f64)>,
@@ -241,12 +243,17 @@ impl Collected {
                     self.commands.push((c.header.stamp_ns, v, w));
                 }
             }
-            SessionMsg::Frame(f) => self.frames.push(FrameRef {
-                meta,
-                topic: m.topic.clone(),
-                log_time_ns: m.log_time_ns,
-                stamp_ns: f.stamp_ns,
-            }),
+            SessionMsg::Frame(f) => {
+                if let crate::io::session::FramePixels::Raw(img) = &f.pixels {
+                    self.mono_frames += usize::from(img.encoding == "mono8");
+                }
+                self.frames.push(FrameRef {
+                    meta,
+                    topic: m.topic.clone(),
+                    log_time_ns: m.log_time_ns,
+                    stamp_ns: f.stamp_ns,
+                })
+            }
             SessionMsg::GroundTruthPose(p) => match usable_pose(&p.pose) {
                 Ok(iso) => self.gt_poses.push((p.header.stamp_ns, iso)),
                 Err(why) => self.warnings.push(format!("{at}: {why}; message skipped")),
@@ -428,6 +435,15 @@ pub fn load_session(reader: &SessionReader) -> Result<SessionData, ReplayError> 
         };
         let at = reader.at(Some(&m.topic), m.log_time_ns);
         c.take(m, meta, at)?;
+    }
+    if c.mono_frames > 0 {
+        // Read as grey RGB: a model trained on colour then tells objects by brightness alone
+        // (an explorer's mono8 copy of the chair tour: no object found, and nothing said).
+        c.warnings.push(format!(
+            "{path}: {} of {} frames are mono8 (grey): a model trained on colour frames sees their brightness alone and may find nothing",
+            c.mono_frames,
+            c.frames.len()
+        ));
     }
     let (camera, distortion, camera_frame_id) =
         c.camera.clone().ok_or_else(|| ReplayError::Invalid {
