@@ -479,6 +479,22 @@ pub fn load_session(reader: &SessionReader) -> Result<SessionData, ReplayError> 
                 (None, None) => format!("{path}: no transform on {tf_static} names the camera"),
             });
     }
+    // A driver that stamps its images with the camera's link rather than its optical frame
+    // (x forward, not z): the mount then turns every ray, and an explorer's copy of the chair
+    // tour found nothing without a word.
+    let optical_below = c
+        .transforms
+        .iter()
+        .map(|(p, ch, _)| (p, ch))
+        .chain(c.dynamic.iter().map(|(p, ch, _, _)| (p, ch)))
+        .find(|(p, ch)| **p == camera_frame_id && ch.contains("optical"));
+    if let Some((_, child)) = optical_below
+        && !camera_frame_id.contains("optical")
+    {
+        c.warnings.push(format!(
+            "{path}: the frames are in {camera_frame_id:?}, but the transforms put the optical frame {child:?} below it: is the images' frame_id the camera's link rather than its optical frame (z forward, x right, y down)?"
+        ));
+    }
     if c.odom.windows(2).any(|w| w[1].0 < w[0].0) {
         c.warnings.push(format!(
             "{path}: {} stamps go backwards; poses sorted by stamp",
