@@ -267,6 +267,36 @@ impl Collected {
     /// Takes one CameraInfo: the first sets the camera; later ones must agree with it to
     /// [`crate::types::lens::CAMERA_TOLERANCE_PX`] (calibrations decomposed per view differ by
     /// rounding).
+    /// Warnings about the frames a model may see wrongly: raw `mono8` frames (read as grey
+    /// RGB, so a model trained on colour tells objects by brightness alone: an explorer's
+    /// mono8 copy of the chair tour found nothing and said nothing), and a frame id that is
+    /// the camera's link with its optical frame below it (a driver's misconfiguration: the
+    /// mount then turns every ray, and the same copy found nothing either).
+    fn frame_warnings(&self, path: &str, camera_frame_id: &str) -> Vec<String> {
+        let mut out = Vec::new();
+        if self.mono_frames > 0 {
+            out.push(format!(
+                "{path}: {} of {} frames are mono8 (grey): a model trained on colour frames sees their brightness alone and may find nothing",
+                self.mono_frames,
+                self.frames.len()
+            ));
+        }
+        let optical_below = self
+            .transforms
+            .iter()
+            .map(|(p, ch, _)| (p, ch))
+            .chain(self.dynamic.iter().map(|(p, ch, _, _)| (p, ch)))
+            .find(|(p, ch)| *p == camera_frame_id && ch.contains("optical"));
+        if let Some((_, child)) = optical_below
+            && !camera_frame_id.contains("optical")
+        {
+            out.push(format!(
+                "{path}: the frames are in {camera_frame_id:?}, but the transforms put the optical frame {child:?} below it: is the images' frame_id the camera's link rather than its optical frame (z forward, x right, y down)?"
+            ));
+        }
+        out
+    }
+
     fn take_camera(&mut self, ci: &crate::io::msgs::CameraInfo, at: At) -> Result<(), ReplayError> {
         let invalid = |what: String| ReplayError::Invalid {
             at: at.clone(),
@@ -436,15 +466,6 @@ pub fn load_session(reader: &SessionReader) -> Result<SessionData, ReplayError> 
         let at = reader.at(Some(&m.topic), m.log_time_ns);
         c.take(m, meta, at)?;
     }
-    if c.mono_frames > 0 {
-        // Read as grey RGB: a model trained on colour then tells objects by brightness alone
-        // (an explorer's mono8 copy of the chair tour: no object found, and nothing said).
-        c.warnings.push(format!(
-            "{path}: {} of {} frames are mono8 (grey): a model trained on colour frames sees their brightness alone and may find nothing",
-            c.mono_frames,
-            c.frames.len()
-        ));
-    }
     let (camera, distortion, camera_frame_id) =
         c.camera.clone().ok_or_else(|| ReplayError::Invalid {
             at: At {
@@ -479,22 +500,8 @@ pub fn load_session(reader: &SessionReader) -> Result<SessionData, ReplayError> 
                 (None, None) => format!("{path}: no transform on {tf_static} names the camera"),
             });
     }
-    // A driver that stamps its images with the camera's link rather than its optical frame
-    // (x forward, not z): the mount then turns every ray, and an explorer's copy of the chair
-    // tour found nothing without a word.
-    let optical_below = c
-        .transforms
-        .iter()
-        .map(|(p, ch, _)| (p, ch))
-        .chain(c.dynamic.iter().map(|(p, ch, _, _)| (p, ch)))
-        .find(|(p, ch)| **p == camera_frame_id && ch.contains("optical"));
-    if let Some((_, child)) = optical_below
-        && !camera_frame_id.contains("optical")
-    {
-        c.warnings.push(format!(
-            "{path}: the frames are in {camera_frame_id:?}, but the transforms put the optical frame {child:?} below it: is the images' frame_id the camera's link rather than its optical frame (z forward, x right, y down)?"
-        ));
-    }
+    let frames_said = c.frame_warnings(&path, &camera_frame_id);
+    c.warnings.extend(frames_said);
     if c.odom.windows(2).any(|w| w[1].0 < w[0].0) {
         c.warnings.push(format!(
             "{path}: {} stamps go backwards; poses sorted by stamp",
