@@ -877,43 +877,27 @@ fn outputs_never_overwrite_inputs_or_each_other() {
     let col = dir.path().join("col.rrd");
     // Through a directory not made yet: `new/../s.mcap` is the session.
     let through_new = dir.path().join("new").join("..").join("s.mcap");
+    let fuse_to = |report| {
+        vec![
+            "fuse",
+            p(&session),
+            "--model",
+            p(&model),
+            "--no-rerun",
+            "--report",
+            report,
+        ]
+    };
     let cases: [(Vec<&str>, &str); 6] = [
         (
-            vec![
-                "fuse",
-                p(&session),
-                "--model",
-                p(&model),
-                "--no-rerun",
-                "--report",
-                p(&session),
-            ],
+            fuse_to(p(&session)),
             "is the session: writing it would destroy it",
         ),
         (
-            vec![
-                "fuse",
-                p(&session),
-                "--model",
-                p(&model),
-                "--no-rerun",
-                "--report",
-                p(&through_new),
-            ],
+            fuse_to(p(&through_new)),
             "is the session: writing it would destroy it",
         ),
-        (
-            vec![
-                "fuse",
-                p(&session),
-                "--model",
-                p(&model),
-                "--no-rerun",
-                "--report",
-                p(&model),
-            ],
-            "is the --model",
-        ),
+        (fuse_to(p(&model)), "is the --model"),
         (
             vec![
                 "fuse",
