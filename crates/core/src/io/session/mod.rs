@@ -570,8 +570,15 @@ impl Frame {
         }
         match &self.pixels {
             FramePixels::Encoded { format, data } => {
-                let media = EncodedMedia::of_format(format)
+                let named = EncodedMedia::of_format(format)
                     .ok_or_else(|| FrameError::Format(format.clone()))?;
+                // The bytes say what they are: a PNG whose `format` says jpeg (a recorder's
+                // mislabel) was refused as a truncated JPEG.
+                let media = match image::guess_format(data) {
+                    Ok(image::ImageFormat::Png) => EncodedMedia::Png,
+                    Ok(image::ImageFormat::Jpeg) => EncodedMedia::Jpeg,
+                    _ => named,
+                };
                 if media == EncodedMedia::Jpeg && !jpeg_is_complete(data) {
                     return Err(FrameError::TruncatedJpeg { bytes: data.len() });
                 }
@@ -772,6 +779,19 @@ mod tests {
         out.extend_from_slice(&app1);
         out.extend_from_slice(&jpeg[2..]);
         out
+    }
+
+    #[test]
+    fn a_png_labelled_jpeg_decodes_as_the_png_it_is() {
+        let pixels: Vec<u8> = (0..8 * 4 * 3).map(|i| (i * 11 % 256) as u8).collect();
+        let png = crate::types::image::encode_png(8, 4, &pixels).unwrap();
+        let rgb = frame("jpeg", png.clone()).decode_rgb8().unwrap();
+        assert_eq!(rgb.data, pixels);
+        // Bytes that are neither are refused.
+        let e = frame("png", b"not an image".to_vec())
+            .decode_rgb8()
+            .unwrap_err();
+        assert!(e.to_string().starts_with("image does not decode"), "{e}");
     }
 
     #[test]
