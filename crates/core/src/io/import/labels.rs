@@ -197,7 +197,10 @@ fn parse_row<'a>(
                 fields.len()
             ));
         }
-        Some(n) if fields.len() != n => {
+        // One column more than a header without an object column names: the object, as
+        // objloc's own sixth column (rows of `image,x,y,w,h` with objects were read so when
+        // any header was skipped).
+        Some(n) if fields.len() != n && !(c.object.is_none() && fields.len() == n + 1) => {
             return Err(format!(
                 "expected {n} columns as the header names, found {}",
                 fields.len()
@@ -211,8 +214,10 @@ fn parse_row<'a>(
     }
     let edges = c.edges.map(|k| (k, fields[k]));
     let roi = parse_box(edges, c.corners)?;
+    let extra = c.count.filter(|&n| fields.len() == n + 1);
     let object = c
         .object
+        .or(extra)
         .and_then(|k| fields.get(k))
         .filter(|o| !o.is_empty())
         .map(|o| (*o).to_owned());
@@ -508,6 +513,9 @@ mod tests {
             ),
             "{e}"
         );
+        // A header without an object column, rows with one: the last column is the object.
+        let l = parse_labels(p, "image,x,y,w,h\nb.png,1,2,3,4,cup\n").unwrap();
+        assert_eq!(boxes(&l, "b.png"), vec![(1, 2, 3, 4, Some("cup".into()))]);
         let e = parse_labels(p, "filename,xmin,ymin,xmax,ymax\nb.png,1,2,3\n").unwrap_err();
         assert_eq!(
             e.to_string(),
