@@ -423,7 +423,7 @@ fn unposed_warning(scan: &Scan, topics: &Topics) -> Option<String> {
         .collect();
     let (_, lt) = unposed.first()?;
     Some(format!(
-        "{} frame(s) have no {} pose within 50 ms (first at log time {})",
+        "{} frame(s) have no {} pose within 50 ms, nor two around them at most 250 ms apart (first at log time {})",
         unposed.len(),
         topics.odom,
         fmt_ns(*lt)

@@ -2,13 +2,21 @@
 //!
 //! Invariants: poses are sorted by stamp (ties keep their order); a lookup interpolates
 //! between the poses around the stamp, refuses a gap (no pose within [`POSE_TOLERANCE_NS`]
-//! on either side) and reaches at most that far beyond either end.
+//! on either side, and the two more than [`MAX_INTERPOLATED_INTERVAL_NS`] apart) and reaches
+//! at most that tolerance beyond either end.
 
 use crate::types::geometry::{Iso3, interpolate};
 
 /// A frame is posed when the track reaches within this of its stamp on both sides (or one
 /// side, at the ends of the track).
 pub const POSE_TOLERANCE_NS: i64 = 50_000_000;
+
+/// ... or when the two poses around its stamp are at most this far apart, whatever the
+/// distance to either: odometry at 4-5 Hz (a frame between two messages 200 ms apart was
+/// refused as in a gap, half the frames of such a bag; tf2 interpolates any interval). A
+/// quarter second of a robot's motion is close to a straight line and an even turn; a wider
+/// hole is a gap still.
+pub const MAX_INTERPOLATED_INTERVAL_NS: i64 = 250_000_000;
 
 /// Where a stamp falls in a sorted list of stamps.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -44,7 +52,11 @@ fn bracket(
     match (i.checked_sub(1), (i < len).then_some(i)) {
         (Some(a), Some(b)) => {
             let (t0, t1) = (stamps(a), stamps(b));
-            if gaps && stamp_ns - t0 > POSE_TOLERANCE_NS && t1 - stamp_ns > POSE_TOLERANCE_NS {
+            if gaps
+                && stamp_ns - t0 > POSE_TOLERANCE_NS
+                && t1 - stamp_ns > POSE_TOLERANCE_NS
+                && t1 - t0 > MAX_INTERPOLATED_INTERVAL_NS
+            {
                 // A gap: interpolating across it would invent a pose.
                 return None;
             }
@@ -113,7 +125,8 @@ impl PoseTrack {
     }
 
     /// The pose at `stamp_ns`: interpolated between the poses around it; `None` across a gap
-    /// (no pose within [`POSE_TOLERANCE_NS`] on either side) or further than that beyond the
+    /// (no pose within [`POSE_TOLERANCE_NS`] on either side, and the two around it more than
+    /// [`MAX_INTERPOLATED_INTERVAL_NS`] apart) or further than the tolerance beyond the
     /// track's ends.
     pub fn at(&self, stamp_ns: i64) -> Option<Iso3> {
         if self.missing.binary_search(&stamp_ns).is_ok() {
@@ -171,6 +184,18 @@ mod tests {
         assert!(track.at(-60_000_000).is_none());
         assert!(covered(&[0, 100_000_000], 120_000_000) && !covered(&[0], 60_000_000));
         assert!(PoseTrack::default().at(0).is_none());
+        // Odometry at 5 Hz: a frame halfway between two messages 200 ms apart is posed; 300
+        // ms apart is a gap.
+        let five_hz = PoseTrack::new(vec![
+            (0, iso_from_xy_yaw(0.0, 0.0, 0.0)),
+            (200_000_000, iso_from_xy_yaw(0.2, 0.0, 0.0)),
+            (500_000_000, iso_from_xy_yaw(0.5, 0.0, 0.0)),
+        ]);
+        assert!((x(five_hz.at(100_000_000)).unwrap() - 0.1).abs() < 1e-12);
+        assert!(five_hz.at(350_000_000).is_none());
+        assert!(
+            covered(&[0, 200_000_000], 100_000_000) && !covered(&[0, 300_000_000], 150_000_000)
+        );
     }
 
     #[test]

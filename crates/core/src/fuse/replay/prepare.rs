@@ -215,7 +215,7 @@ fn fusable_frames(ctx: &mut Context<'_>) -> Vec<(FrameRef, Iso3, Iso3)> {
         let at = || reader.at(Some(&fr.topic), fr.log_time_ns);
         let Some(odometry) = ctx.data.odom_at(fr.stamp_ns) else {
             ctx.warnings.push(format!(
-                "{}: no {} pose within 50 ms of stamp {}; frame skipped",
+                "{}: no {} pose within 50 ms of stamp {} (nor two around it at most 250 ms apart); frame skipped",
                 at(),
                 reader.topics().odom,
                 fmt_ns(fr.stamp_ns.max(0) as u64)
