@@ -899,17 +899,7 @@ fn outputs_never_overwrite_inputs_or_each_other() {
         ),
         (fuse_to(p(&model)), "is the --model"),
         (
-            vec![
-                "fuse",
-                p(&session),
-                "--model",
-                p(&model),
-                "--no-rerun",
-                "--report",
-                p(&same_json),
-                "--grid",
-                p(&same_json),
-            ],
+            [fuse_to(p(&same_json)), vec!["--grid", p(&same_json)]].concat(),
             "--grid",
         ),
         (

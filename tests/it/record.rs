@@ -502,20 +502,7 @@ fn import_takes_a_capture_as_phones_and_labelling_tools_write_it() {
     )
     .unwrap();
     let out = dir.path().join("cap.mcap");
-    let run_args = vec![
-        "record",
-        "import",
-        "--images",
-        p(&rgb),
-        "--trajectory",
-        p(&traj),
-        "--camera",
-        "30,30,16,12",
-        "--labels",
-        p(&csv),
-        "-o",
-        p(&out),
-    ];
+    let run_args = tum_args(&rgb, &traj, "30,30,16,12", Some(&csv), &out);
     let run = objloc(&run_args, &[]);
     let said = ok(&run);
     assert!(
@@ -699,6 +686,32 @@ fn import_tum_sequence_with_labels() {
 
 /// Imports 8 x 8 images `names` (image k red (k + 1) * 20) against the TUM trajectory
 /// `lines` with `--camera 8,8,4,4` into `dir`; the session and stderr, the import succeeded.
+/// `record import` of the images in `images` against the TUM trajectory `traj`, with
+/// `--camera` intrinsics and, when given, a labels CSV, into `out`.
+fn tum_args<'a>(
+    images: &'a Path,
+    traj: &'a Path,
+    camera: &'a str,
+    labels: Option<&'a Path>,
+    out: &'a Path,
+) -> Vec<&'a str> {
+    let mut args = vec![
+        "record",
+        "import",
+        "--images",
+        p(images),
+        "--trajectory",
+        p(traj),
+        "--camera",
+        camera,
+    ];
+    if let Some(l) = labels {
+        args.extend(["--labels", p(l)]);
+    }
+    args.extend(["-o", p(out)]);
+    args
+}
+
 fn tum_import(dir: &Path, names: &[&str], lines: &str) -> (PathBuf, String) {
     let named: Vec<(&str, u32, u32, [u8; 3])> = names
         .iter()
@@ -709,21 +722,7 @@ fn tum_import(dir: &Path, names: &[&str], lines: &str) -> (PathBuf, String) {
     let traj = dir.join("traj.txt");
     std::fs::write(&traj, lines).unwrap();
     let out = dir.join("t.mcap");
-    let o = objloc(
-        &[
-            "record",
-            "import",
-            "--images",
-            p(&images),
-            "--trajectory",
-            p(&traj),
-            "--camera",
-            "8,8,4,4",
-            "-o",
-            p(&out),
-        ],
-        &[],
-    );
+    let o = objloc(&tum_args(&images, &traj, "8,8,4,4", None, &out), &[]);
     ok(&o);
     (out, said(&o))
 }
@@ -790,23 +789,7 @@ fn import_leaves_out_images_beyond_the_trajectory_and_questions_odd_intrinsics_a
     )
     .unwrap();
     let out = dir.path().join("t.mcap");
-    let import = |camera: &str| {
-        let args = [
-            "record",
-            "import",
-            "--images",
-            p(&images),
-            "--trajectory",
-            p(&traj),
-            "--camera",
-            camera,
-            "--labels",
-            p(&labels),
-            "-o",
-            p(&out),
-        ];
-        objloc(&args, &[])
-    };
+    let import = |camera: &str| objloc(&tum_args(&images, &traj, camera, Some(&labels), &out), &[]);
     let text = said(&import("300,300,200,200"));
     assert!(
         text.contains("(4 frames, 1 labelled; matched by file-name timestamps)"),

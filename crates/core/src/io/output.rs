@@ -62,21 +62,10 @@ pub fn write_atomic_with(
     path: &Path,
     fill: impl FnOnce(&mut dyn Write) -> std::io::Result<()>,
 ) -> std::io::Result<()> {
-    let (partial, target) = destination(path)?;
-    let result = (|| {
-        let mut w = std::io::BufWriter::with_capacity(1 << 20, std::fs::File::create(&partial)?);
-        fill(&mut w)?;
-        let f = w
-            .into_inner()
-            .map_err(std::io::IntoInnerError::into_error)?;
-        f.sync_all()?;
-        drop(f);
-        std::fs::rename(&partial, &target)
-    })();
-    if result.is_err() {
-        let _ = std::fs::remove_file(&partial);
-    }
-    result
+    // One output staged alone: written whole, renamed, or removed on any error.
+    let mut staged = Staged::default();
+    staged.write_with(path, fill)?;
+    staged.commit().map(|_| ())
 }
 
 /// The outputs of one command, each written whole to its `.partial` file and renamed into

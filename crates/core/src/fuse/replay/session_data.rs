@@ -420,16 +420,7 @@ fn commands_elsewhere(reader: &SessionReader) -> Option<String> {
     if reader.count(cmd_vel) > 0 {
         return None;
     }
-    let twist = [
-        "geometry_msgs/msg/TwistStamped",
-        "geometry_msgs/TwistStamped",
-    ];
-    let others: Vec<&str> = reader
-        .channels()
-        .values()
-        .filter(|c| twist.contains(&c.schema_name.as_str()))
-        .map(|c| c.topic.as_str())
-        .collect();
+    let others = reader.topics_carrying(Role::CmdVel.message_type());
     let first = others.first()?;
     Some(format!(
         "{}: nothing on {cmd_vel}, but velocity commands on {}: fused without a motion model, as a capture (--topic cmd_vel={first} to use them)",

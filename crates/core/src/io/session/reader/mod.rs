@@ -522,6 +522,18 @@ impl SessionReader {
         Ok(())
     }
 
+    /// The topics whose schema is `type_name` (`pkg/msg/Type`, or `pkg/Type` as ROS 1 and
+    /// some writers name it), in channel order: where a role's messages may be under
+    /// another name.
+    pub fn topics_carrying(&self, type_name: &str) -> Vec<&str> {
+        let short = type_name.replace("/msg/", "/");
+        self.channels
+            .values()
+            .filter(|c| c.schema_name == type_name || c.schema_name == short)
+            .map(|c| c.topic.as_str())
+            .collect()
+    }
+
     /// The end of the error of a missing topic in one of `roles`: the topics that carry the
     /// role's type under another name (`--topic` can name them), and what the reader warned
     /// of (a file cut short in its first chunk said only that a topic was missing).
@@ -529,14 +541,7 @@ impl SessionReader {
         let mut why = String::new();
         for role in roles {
             let wanted = role.message_type();
-            // `pkg/Type` is how ROS 1 and some writers name `pkg/msg/Type`.
-            let short = wanted.replace("/msg/", "/");
-            let others: Vec<&str> = self
-                .channels
-                .values()
-                .filter(|c| c.schema_name == wanted || c.schema_name == short)
-                .map(|c| c.topic.as_str())
-                .collect();
+            let others = self.topics_carrying(wanted);
             if let Some(first) = others.first() {
                 why.push_str(&format!(
                     "; the file has {wanted} on {} (--topic {}={first})",
