@@ -57,9 +57,12 @@ pub(super) fn search(score: impl Fn(&Vector3<f64>, usize, f64) -> f64 + Sync) ->
             // chosen in candidate order: strictly better only, so the first of equal
             // candidates wins and the choice does not depend on the thread count. Only a
             // candidate better than the best so far can win: the others may stop early.
+            // The centre is the best so far, already scored in full: it cannot be strictly
+            // better than itself.
             let at_least = best.0;
             offsets
                 .par_iter()
+                .filter(|o| **o != Vector3::zeros())
                 .map(|o| {
                     let z = centre + o * step;
                     (score(&z, stride, at_least), z)
