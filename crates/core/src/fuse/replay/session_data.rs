@@ -367,6 +367,44 @@ impl Collected {
         Ok(())
     }
 
+    /// The warning for a static camera mount that no transform links to the frame /odom
+    /// moves (the mount then stands in unlinked), if it is so.
+    fn unlinked_mount(
+        &self,
+        reader: &SessionReader,
+        tf: &TfTree,
+        camera_frame_id: &str,
+        first_stamp_ns: i64,
+    ) -> Option<String> {
+        let path = reader.path().display();
+        if let Some(base) = &self.base_frame_id
+            && tf
+                .lookup(Some(base), camera_frame_id, first_stamp_ns)
+                .is_err()
+            && !tf.is_dynamic()
+        {
+            let tf_static = &reader.topics().tf_static;
+            Some(
+                match (tf.parent(camera_frame_id), self.transforms.first()) {
+                    (Some(parent), _) => format!(
+                        "{path}: the camera mount is taken from {parent} -> {camera_frame_id} on \
+                     {tf_static}, but /odom moves {base:?}, which no transform connects to it (a \
+                     moving mount's /tf missing?)"
+                    ),
+                    // The lone transform stands in, though it names neither frame.
+                    (None, Some((p, child, _))) => format!(
+                        "{path}: the camera mount is taken from the only transform on {tf_static}, \
+                     {p} -> {child}, though the camera's frame is {camera_frame_id:?} and /odom \
+                     moves {base:?}: check the frames"
+                    ),
+                    (None, None) => format!("{path}: no transform on {tf_static} names the camera"),
+                },
+            )
+        } else {
+            None
+        }
+    }
+
     /// The transform tree, checked to give the camera mount: at every stamp when static,
     /// at least somewhere when it moves (frames without one are skipped later).
     fn mount(
@@ -468,29 +506,8 @@ pub fn load_session(reader: &SessionReader) -> Result<SessionData, ReplayError> 
         })?;
     let first_stamp_ns = c.frames.first().map_or(0, |f| f.stamp_ns);
     let (tf, lone_mount) = c.mount(reader, &camera_frame_id, first_stamp_ns)?;
-    if let Some(base) = &c.base_frame_id
-        && tf
-            .lookup(Some(base), &camera_frame_id, first_stamp_ns)
-            .is_err()
-        && !tf.is_dynamic()
-    {
-        let tf_static = &reader.topics().tf_static;
-        c.warnings
-            .push(match (tf.parent(&camera_frame_id), c.transforms.first()) {
-                (Some(parent), _) => format!(
-                    "{path}: the camera mount is taken from {parent} -> {camera_frame_id} on \
-                 {tf_static}, but /odom moves {base:?}, which no transform connects to it (a \
-                 moving mount's /tf missing?)"
-                ),
-                // The lone transform stands in, though it names neither frame.
-                (None, Some((p, child, _))) => format!(
-                    "{path}: the camera mount is taken from the only transform on {tf_static}, \
-                 {p} -> {child}, though the camera's frame is {camera_frame_id:?} and /odom \
-                 moves {base:?}: check the frames"
-                ),
-                (None, None) => format!("{path}: no transform on {tf_static} names the camera"),
-            });
-    }
+    c.warnings
+        .extend(c.unlinked_mount(reader, &tf, &camera_frame_id, first_stamp_ns));
     let frames_said = c.frame_warnings(&path, &camera_frame_id);
     c.warnings.extend(frames_said);
     if c.odom.windows(2).any(|w| w[1].0 < w[0].0) {
