@@ -376,33 +376,32 @@ impl Collected {
         camera_frame_id: &str,
         first_stamp_ns: i64,
     ) -> Option<String> {
-        let path = reader.path().display();
-        if let Some(base) = &self.base_frame_id
-            && tf
+        let base = self.base_frame_id.as_ref()?;
+        if tf.is_dynamic()
+            || tf
                 .lookup(Some(base), camera_frame_id, first_stamp_ns)
-                .is_err()
-            && !tf.is_dynamic()
+                .is_ok()
         {
-            let tf_static = &reader.topics().tf_static;
-            Some(
-                match (tf.parent(camera_frame_id), self.transforms.first()) {
-                    (Some(parent), _) => format!(
-                        "{path}: the camera mount is taken from {parent} -> {camera_frame_id} on \
-                     {tf_static}, but /odom moves {base:?}, which no transform connects to it (a \
-                     moving mount's /tf missing?)"
-                    ),
-                    // The lone transform stands in, though it names neither frame.
-                    (None, Some((p, child, _))) => format!(
-                        "{path}: the camera mount is taken from the only transform on {tf_static}, \
-                     {p} -> {child}, though the camera's frame is {camera_frame_id:?} and /odom \
-                     moves {base:?}: check the frames"
-                    ),
-                    (None, None) => format!("{path}: no transform on {tf_static} names the camera"),
-                },
-            )
-        } else {
-            None
+            return None;
         }
+        let path = reader.path().display();
+        let tf_static = &reader.topics().tf_static;
+        Some(
+            match (tf.parent(camera_frame_id), self.transforms.first()) {
+                (Some(parent), _) => format!(
+                    "{path}: the camera mount is taken from {parent} -> {camera_frame_id} on \
+                 {tf_static}, but /odom moves {base:?}, which no transform connects to it (a \
+                 moving mount's /tf missing?)"
+                ),
+                // The lone transform stands in, though it names neither frame.
+                (None, Some((p, child, _))) => format!(
+                    "{path}: the camera mount is taken from the only transform on {tf_static}, \
+                 {p} -> {child}, though the camera's frame is {camera_frame_id:?} and /odom \
+                 moves {base:?}: check the frames"
+                ),
+                (None, None) => format!("{path}: no transform on {tf_static} names the camera"),
+            },
+        )
     }
 
     /// The transform tree, checked to give the camera mount: at every stamp when static,

@@ -36,6 +36,11 @@ fn session(path: &std::path::Path, frames: i64) -> SessionReader {
 
 /// [`session`] with plumb_bob distortion `d` in CameraInfo (none when empty).
 fn session_with_distortion(path: &std::path::Path, frames: i64, d: &[f64]) -> SessionReader {
+    session_of(path, frames, d, "base_link")
+}
+
+/// [`session_with_distortion`] whose /odom moves `odom_child` (the mount is on base_link).
+fn session_of(path: &std::path::Path, frames: i64, d: &[f64], odom_child: &str) -> SessionReader {
     let mut w = SessionWriter::create(path).unwrap();
     let t = Topics::default();
     let start = 1_000_000_000;
@@ -56,7 +61,7 @@ fn session_with_distortion(path: &std::path::Path, frames: i64, d: &[f64]) -> Se
         let stamp = start + k * 1_000_000_000;
         let odom = Odometry {
             header: Header::new(stamp, "odom"),
-            child_frame_id: "base_link".into(),
+            child_frame_id: odom_child.into(),
             pose: Pose {
                 position: [0.0; 3],
                 orientation_xyzw: [0.0, 0.0, 0.0, 1.0],
@@ -181,4 +186,32 @@ fn observers_get_the_recorded_file_unless_the_frame_is_undistorted_first() {
             "{black} black"
         );
     }
+}
+
+#[test]
+fn a_mount_that_no_transform_links_to_the_odom_frame_is_a_warning() {
+    let dir = tempfile::tempdir().unwrap();
+    let linked = load_session(&session(&dir.path().join("a.mcap"), 2)).unwrap();
+    assert!(
+        !linked.warnings.iter().any(|w| w.contains("camera mount")),
+        "{:?}",
+        linked.warnings
+    );
+    let path = dir.path().join("b.mcap");
+    let data = load_session(&session_of(&path, 2, &[], "base_footprint")).unwrap();
+    let said: Vec<&String> = data
+        .warnings
+        .iter()
+        .filter(|w| w.contains("camera mount"))
+        .collect();
+    assert_eq!(said.len(), 1, "{:?}", data.warnings);
+    assert_eq!(
+        *said[0],
+        format!(
+            "{}: the camera mount is taken from base_link -> camera on /tf_static, but /odom \
+             moves \"base_footprint\", which no transform connects to it (a moving mount's \
+             /tf missing?)",
+            path.display()
+        )
+    );
 }
