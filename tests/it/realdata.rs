@@ -162,3 +162,91 @@ fn the_milk_carton_is_located_inside_its_rectangles_with_fitted_defaults() {
     // the carton); the target is 8 %.
     assert!(frac < 8.0, "{ev}");
 }
+
+/// The banana of the phone capture, curved round the apple: its detections fall apart in
+/// many frames (a weak stalk and tip), so each frame's ray is chosen again around where the
+/// rays meet, not only around the hull's centre (10.5 % of its size from where the
+/// rectangles put it when chosen once; docs/realdata.md).
+#[test]
+fn the_banana_is_located_within_the_target_from_three_labelled_frames() {
+    let Some(r) = realdata() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let nerf = r.join("fruit/transforms.json");
+    let import = |labels: &str, out: &str| {
+        let o = d.join(out);
+        let lab = repo_dir().join("recordings/realdata/fruit").join(labels);
+        ok(&objloc(
+            &[
+                "record",
+                "import",
+                "--nerf",
+                p(&nerf),
+                "--labels",
+                p(&lab),
+                "-o",
+                p(&o),
+            ],
+            &[],
+        ));
+        o
+    };
+    let train = import("train-labels.csv", "train.mcap");
+    let tour = import("labels.csv", "tour.mcap");
+    let model = d.join("banana.json");
+    ok(&objloc(
+        &[
+            "train",
+            p(&train),
+            "--object",
+            "banana",
+            "-o",
+            p(&model),
+            "--no-rerun",
+        ],
+        &[],
+    ));
+    let report = d.join("r.json");
+    let out = ok(&objloc(
+        &[
+            "fuse",
+            p(&tour),
+            "--model",
+            p(&model),
+            "--report",
+            p(&report),
+            "--no-rerun",
+        ],
+        &[],
+    ));
+    let rep = json(&report);
+    assert_eq!(rep["objects"].as_array().unwrap().len(), 1, "{out}");
+    assert!(rep["objects"][0]["from_detections"].is_object(), "{out}");
+    let ev = ok(&objloc(
+        &[
+            "eval",
+            p(&tour),
+            "--report",
+            p(&report),
+            "--object",
+            "banana",
+        ],
+        &[],
+    ));
+    // Measured 79 of 81 and 6.9 %; the targets are 95 % and 8 %.
+    let inside: u32 = ev
+        .split("inside the rectangle in ")
+        .nth(1)
+        .and_then(|s| s.split_whitespace().next())
+        .and_then(|s| s.parse().ok())
+        .unwrap_or_else(|| panic!("no rectangle count in {ev}"));
+    assert!(inside >= 77, "{ev}");
+    assert!(ev.contains(&format!("{inside} of 81 frames")), "{ev}");
+    let frac: f64 = ev
+        .split(" % of the size")
+        .next()
+        .and_then(|s| s.rsplit(' ').next())
+        .and_then(|s| s.parse().ok())
+        .unwrap_or_else(|| panic!("no error fraction in {ev}"));
+    assert!(frac < 8.0, "{ev}");
+}
