@@ -120,7 +120,7 @@ pub const MAX_RESELECTIONS: usize = 5;
 /// again (at most [`MAX_RESELECTIONS`] times). Why: where the hull is much larger than the
 /// object (the banana of `../shared/realdata`: a hull 2.2 x 2.4 x 1.4 of the capture's units)
 /// its centre lies off the object, and in views where the object's detections split in two
-/// (its stalk, a shadow across it) the piece nearest that centre is not the object's box. A
+/// (a weak stalk, a body in two groups) the piece nearest that centre is not its box. A
 /// choice that then fails to triangulate keeps the previous centre.
 pub fn ray_centre(
     object: &Object,
