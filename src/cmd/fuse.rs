@@ -578,6 +578,15 @@ pub fn print_summary(f: &Fused) {
                 e[1],
                 e[2]
             );
+            if let Some(f) = d.first_choice_centre_m {
+                say!(
+                    "  its rays chosen again {} time(s) around where they met: the first choice, around the extent's centre, gave ({:.3}, {:.3}, {:.3})",
+                    d.rechosen,
+                    f[0],
+                    f[1],
+                    f[2]
+                );
+            }
         } else if let Some(why) = &o.not_from_detections {
             say!("  located at the extent's centre: its detections do not triangulate: {why}");
         }

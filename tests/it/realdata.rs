@@ -222,6 +222,12 @@ fn the_banana_is_located_within_the_target_from_three_labelled_frames() {
     let rep = json(&report);
     assert_eq!(rep["objects"].as_array().unwrap().len(), 1, "{out}");
     assert!(rep["objects"][0]["from_detections"].is_object(), "{out}");
+    // The first choice, around the hull's centre, did not stand, and both say so.
+    assert!(
+        rep["objects"][0]["from_detections"]["rechosen"].as_u64() >= Some(1),
+        "{out}"
+    );
+    assert!(out.contains("its rays chosen again"), "{out}");
     let ev = ok(&objloc(
         &[
             "eval",

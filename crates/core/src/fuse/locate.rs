@@ -48,6 +48,14 @@ pub struct RayCentre {
     pub rms_miss_m: f64,
     /// Largest angle between two kept rays, degrees.
     pub spread_deg: f64,
+    /// Times the rays were chosen again around where the previous choice met and the centre
+    /// moved (0: the first choice, around the extent's centre, stood). Absent in reports
+    /// written before the choice was repeated.
+    #[serde(default)]
+    pub rechosen: usize,
+    /// The centre the first choice gave, when it was chosen again (`rechosen` > 0).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub first_choice_centre_m: Option<[f64; 3]>,
 }
 
 /// One fused frame as the triangulation sees it.
@@ -128,7 +136,8 @@ pub fn ray_centre(
     camera: &Camera,
 ) -> Result<RayCentre, NotTriangulated> {
     let mut seed = Vector3::from(object.centroid_m);
-    let mut best = ray_centre_around(object, views, camera, &seed)?;
+    let first = ray_centre_around(object, views, camera, &seed)?;
+    let (mut best, mut rechosen) = (first, 0);
     for _ in 0..MAX_RESELECTIONS {
         let next = Vector3::from(best.centre_m);
         if next == seed {
@@ -136,9 +145,16 @@ pub fn ray_centre(
         }
         seed = next;
         match ray_centre_around(object, views, camera, &seed) {
-            Ok(again) if again != best => best = again,
+            Ok(again) if again != best => {
+                best = again;
+                rechosen += 1;
+            }
             _ => break,
         }
+    }
+    if rechosen > 0 {
+        best.rechosen = rechosen;
+        best.first_choice_centre_m = Some(first.centre_m);
     }
     Ok(best)
 }
@@ -199,6 +215,8 @@ fn ray_centre_around(
             rays: rays.len(),
             rms_miss_m: rms,
             spread_deg,
+            rechosen: 0,
+            first_choice_centre_m: None,
         });
     }
 }
@@ -448,6 +466,8 @@ mod tests {
         );
         assert_eq!(rc.rays, 8);
         assert!(rc.rms_miss_m < 1e-9, "{rc:?}");
+        assert!(rc.rechosen >= 1, "{rc:?}");
+        assert_eq!(rc.first_choice_centre_m, Some(once.centre_m));
     }
 
     /// Rays that meet outside the object's box belong to something else: no location.
