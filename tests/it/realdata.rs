@@ -5,7 +5,7 @@
 //! and says so, the distortion of the phone capture is written, and the located centre is
 //! where the rectangles say (the measured values of docs/realdata.md, with their margins).
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use crate::common::{json, objloc, ok, p, repo_dir};
 
@@ -17,6 +17,29 @@ fn realdata() -> Option<PathBuf> {
         eprintln!("skipped: no ../shared/realdata on this machine");
         None
     }
+}
+
+/// `objloc fuse` of `tour` with `model` and default options, its report to `report`: stdout.
+fn fuse_with_defaults(tour: &Path, model: &Path, report: &Path) -> String {
+    let args = [
+        "fuse",
+        p(tour),
+        "--model",
+        p(model),
+        "--report",
+        p(report),
+        "--no-rerun",
+    ];
+    ok(&objloc(&args, &[]))
+}
+
+/// The located centre's error in percent of the object's size, as `objloc eval` prints it.
+fn error_percent(ev: &str) -> f64 {
+    ev.split(" % of the size")
+        .next()
+        .and_then(|s| s.rsplit(' ').next())
+        .and_then(|s| s.parse().ok())
+        .unwrap_or_else(|| panic!("no error fraction in {ev}"))
 }
 
 #[test]
@@ -92,16 +115,7 @@ fn the_milk_carton_is_located_inside_its_rectangles_with_fitted_defaults() {
     assert_eq!(m["features"], "rgb332+hs");
     assert_eq!(m["metadata"]["augment"], "light");
     let report = d.join("r.json");
-    let args = [
-        "fuse",
-        p(&tour),
-        "--model",
-        p(&model),
-        "--report",
-        p(&report),
-        "--no-rerun",
-    ];
-    let out = ok(&objloc(&args, &[]));
+    let out = fuse_with_defaults(&tour, &model, &report);
     assert!(
         out.contains("fitted to the session: no pose refinement"),
         "{out}"
@@ -152,12 +166,7 @@ fn the_milk_carton_is_located_inside_its_rectangles_with_fitted_defaults() {
         .and_then(|s| s.parse().ok())
         .unwrap_or_else(|| panic!("no tile AUC in {ev}"));
     assert!((0.8..1.0).contains(&auc), "{ev}");
-    let frac: f64 = ev
-        .split(" % of the size")
-        .next()
-        .and_then(|s| s.rsplit(' ').next())
-        .and_then(|s| s.parse().ok())
-        .unwrap_or_else(|| panic!("no error fraction in {ev}"));
+    let frac = error_percent(&ev);
     // Measured 1.7 % (docs/realdata.md; 14.7 % at the extent's centre, the hull's cone under
     // the carton); the target is 8 %.
     assert!(frac < 8.0, "{ev}");
@@ -207,18 +216,7 @@ fn the_banana_is_located_within_the_target_from_three_labelled_frames() {
         &[],
     ));
     let report = d.join("r.json");
-    let out = ok(&objloc(
-        &[
-            "fuse",
-            p(&tour),
-            "--model",
-            p(&model),
-            "--report",
-            p(&report),
-            "--no-rerun",
-        ],
-        &[],
-    ));
+    let out = fuse_with_defaults(&tour, &model, &report);
     let rep = json(&report);
     assert_eq!(rep["objects"].as_array().unwrap().len(), 1, "{out}");
     assert!(rep["objects"][0]["from_detections"].is_object(), "{out}");
@@ -248,11 +246,6 @@ fn the_banana_is_located_within_the_target_from_three_labelled_frames() {
         .unwrap_or_else(|| panic!("no rectangle count in {ev}"));
     assert!(inside >= 77, "{ev}");
     assert!(ev.contains(&format!("{inside} of 81 frames")), "{ev}");
-    let frac: f64 = ev
-        .split(" % of the size")
-        .next()
-        .and_then(|s| s.rsplit(' ').next())
-        .and_then(|s| s.parse().ok())
-        .unwrap_or_else(|| panic!("no error fraction in {ev}"));
+    let frac = error_percent(&ev);
     assert!(frac < 8.0, "{ev}");
 }

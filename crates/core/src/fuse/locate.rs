@@ -135,16 +135,10 @@ pub fn ray_centre(
     views: &[View],
     camera: &Camera,
 ) -> Result<RayCentre, NotTriangulated> {
-    let mut seed = Vector3::from(object.centroid_m);
-    let first = ray_centre_around(object, views, camera, &seed)?;
+    let first = ray_centre_around(object, views, camera, Vector3::from(object.centroid_m))?;
     let (mut best, mut rechosen) = (first, 0);
     for _ in 0..MAX_RESELECTIONS {
-        let next = Vector3::from(best.centre_m);
-        if next == seed {
-            break;
-        }
-        seed = next;
-        match ray_centre_around(object, views, camera, &seed) {
+        match ray_centre_around(object, views, camera, Vector3::from(best.centre_m)) {
             Ok(again) if again != best => {
                 best = again;
                 rechosen += 1;
@@ -164,9 +158,8 @@ fn ray_centre_around(
     object: &Object,
     views: &[View],
     camera: &Camera,
-    seed: &Vector3<f64>,
+    seed: Vector3<f64>,
 ) -> Result<RayCentre, NotTriangulated> {
-    let seed = *seed;
     let lo = Vector3::from(object.bbox_min_m);
     let hi = Vector3::from(object.bbox_max_m);
     // A ray is a sighting of the object when it passes within the object's half-diagonal of
@@ -456,7 +449,7 @@ mod tests {
             })
             .collect();
         let hull = object([0.0, 0.25, 0.5], 0.5);
-        let once = ray_centre_around(&hull, &views, &cam, &beside).unwrap();
+        let once = ray_centre_around(&hull, &views, &cam, beside).unwrap();
         let off = (Vector3::from(once.centre_m) - target).norm();
         assert!(off > 0.01, "{once:?}");
         let rc = ray_centre(&hull, &views, &cam).unwrap();
