@@ -21,6 +21,13 @@ reports `OBJECT-T.json` so that several settings can be measured side by side.
 labelled for training: N seeded random triples of each object's labelled frames (their rows
 of labels.csv) instead of train-labels.csv, one table row per triple and a summary per
 object (a held-out capture's labeller picks frames of their own).
+
+`--via-tum SCALE`: each session is first written as a held-out capture comes (image files
+named by their stamps, a TUM trajectory of /odom, `--camera`/`--distortion` and a labels CSV;
+scripts/sim_as_capture.py, which needs target/pyenv) with its images resampled to SCALE times
+their size, and imported again with `record import --trajectory` (issue #18's graded path):
+`--via-tum 1` checks that path gives the native importers' table, `--via-tum 0.5` a
+downscaled copy.
 """
 import random
 import argparse
@@ -35,6 +42,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 # OBJLOC_BIN: measure another build (a copy, so that rebuilding this tree cannot change it
 # halfway through a run).
 BIN = os.environ.get("OBJLOC_BIN") or os.path.join(ROOT, "target", "release", "objloc")
+PY = os.path.join(ROOT, "target", "pyenv", "bin", "python")
 DATA = os.environ.get("REALDATA_DIR", os.path.join(ROOT, "..", "shared", "realdata"))
 # Sessions are built once per output directory and reused, so another REALDATA_DIR gets its
 # own (a perturbed copy measured into the unperturbed sessions would measure those).
@@ -85,7 +93,23 @@ def labelled_images(capture, obj):
                    if r.split(",")[-1] == obj and int(r.split(",")[3]) > 0})
 
 
-def measure(capture, obj, fuse_flags, tag="", train_images=None):
+def via_tum(mcap, scale):
+    """`mcap` written as a held-out capture comes (scripts/sim_as_capture.py: image files named
+    by their stamps, a TUM trajectory, a labels CSV; images scaled by `scale`) and imported
+    again with `record import --trajectory`: the graded path. Returns the new session."""
+    d = os.path.splitext(mcap)[0] + f"-tum{scale:g}"
+    run([PY, os.path.join(ROOT, "scripts", "sim_as_capture.py"), mcap, d, "--scale", str(scale)])
+    read = lambda f: open(os.path.join(d, f)).read().strip()
+    lens = ["--distortion", read("distortion.txt")] if os.path.exists(
+        os.path.join(d, "distortion.txt")) else []
+    out = d + ".mcap"
+    run([BIN, "record", "import", "--images", os.path.join(d, "images"), "--trajectory",
+         os.path.join(d, "trajectory.txt"), "--camera", read("camera.txt"), *lens,
+         "--labels", os.path.join(d, "labels.csv"), "-o", out])
+    return out
+
+
+def measure(capture, obj, fuse_flags, tag="", train_images=None, tum_scale=None):
     d = os.path.join(OUT, capture)
     os.makedirs(d, exist_ok=True)
     train = os.path.join(d, "train.mcap")
@@ -95,6 +119,9 @@ def measure(capture, obj, fuse_flags, tag="", train_images=None):
         session(capture, os.path.join(LABELS, capture, "labels.csv"), tour)
     if train_images is not None:
         train = triple_session(capture, obj, train_images, tag)
+    if tum_scale is not None:
+        train, tour = via_tum(train, tum_scale), via_tum(tour, tum_scale)
+        tag = f"{tag}-tum{tum_scale:g}" if tag else f"tum{tum_scale:g}"
     name = f"{obj}-{tag}" if tag else obj
     model = os.path.join(d, f"{name}.json")
     report = os.path.join(d, f"{name}.report.json")
@@ -146,7 +173,7 @@ def triples(a):
             rs = []
             for k in range(a.train_triples):
                 pick = sorted(rng.sample(images, 3))
-                r = measure(capture, obj, a.fuse_flags, f"triple{a.seed}-{k}", pick)
+                r = measure(capture, obj, a.fuse_flags, f"triple{a.seed}-{k}", pick, a.via_tum)
                 rs.append(r)
                 err = "n/a" if r["error"] is None else f"{100 * r['error']:.1f} %"
                 fi, fn = r["inside"] or (0, 0)
@@ -171,6 +198,7 @@ def main():
     ap.add_argument("--tag", default="")
     ap.add_argument("--train-triples", type=int, default=0)
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--via-tum", type=float, metavar="SCALE")
     ap.add_argument("fuse_flags", nargs="*")
     a = ap.parse_args()
     if not os.path.isdir(DATA):
@@ -188,7 +216,7 @@ def main():
              "tile AUC | voxel (units) | all targets |", "|---|---|---|---|---|---|---|---|"]
     for capture, (_, _, objs) in CAPTURES.items():
         for obj in objs:
-            lines.append(row(measure(capture, obj, a.fuse_flags, a.tag)))
+            lines.append(row(measure(capture, obj, a.fuse_flags, a.tag, None, a.via_tum)))
     text = "\n".join(lines)
     print(text)
     if a.markdown:

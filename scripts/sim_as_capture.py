@@ -1,19 +1,28 @@
 #!/usr/bin/env python3
-"""Writes a simulated session as a posed capture comes: its frames as image files, the
-camera's true poses as a TUM trajectory (camera in world, OpenCV axes: /ground_truth/pose at
-each frame's stamp composed with the /tf_static mount), its intrinsics, its label rectangles
-as a labels CSV, and the objects' true centres (per name, a list: the volume-weighted
-centroid of each group of touching boxes, as `objloc eval` scores it). `objloc record import --trajectory` then makes a session
-without /cmd_vel of it: the path a real capture takes (issue #18), on a scene whose truth is
-known (docs/realdata.md, "A simulated capture"). The camera's mount is chained from
-/tf_static and /tf at each frame's stamp (a pan-tilt head: interpolated, as tf2 does, no
-further than 50 ms past the samples); a radial-tangential lens is written for
-`--distortion`.
+"""Writes a session as a posed capture comes: its frames as image files, the camera's poses
+as a TUM trajectory (camera in world, OpenCV axes: /ground_truth/pose at each frame's stamp,
+or /odom where the session has no ground truth, composed with the /tf_static mount), its
+intrinsics, its label rectangles as a labels CSV, and the objects' true centres where it
+has them (per name, a list: the volume-weighted centroid of each group of touching boxes, as
+`objloc eval` scores it). `objloc record import --trajectory` then makes a session without
+/cmd_vel of it: the path a real capture takes (issue #18), on a scene whose truth is known
+(docs/realdata.md, "A simulated capture"), or an imported real capture again, as a held-out
+one comes (a TUM trajectory and a labels CSV; `--scale` downscales it as users do). The
+camera's mount is chained from /tf_static and /tf at each frame's stamp (a pan-tilt head:
+interpolated, as tf2 does, no further than 50 ms past the samples); a radial-tangential lens
+is written for `--distortion`.
 
-Usage: target/pyenv/bin/python scripts/sim_as_capture.py SESSION.mcap OUT_DIR
-Writes OUT_DIR/images/<stamp>.png, trajectory.txt, labels.csv, camera.txt (FX,FY,CX,CY),
-distortion.txt (K1,K2,P1,P2,K3, for `--distortion`; only for a distorted lens) and truth.json. Needs mcap and mcap-ros2-support (the test environment's target/pyenv has them).
+Usage: target/pyenv/bin/python scripts/sim_as_capture.py SESSION.mcap OUT_DIR [--scale S]
+Writes OUT_DIR/images/<stamp>.png (or .jpg, as recorded), trajectory.txt, labels.csv,
+camera.txt (FX,FY,CX,CY), distortion.txt (K1,K2,P1,P2,K3, for `--distortion`; only for a
+distorted lens) and truth.json (only with /ground_truth/objects). `--scale S`: every image
+resampled to S times its size (bicubic; JPEG quality 92 or PNG, as recorded), and the
+intrinsics and rectangles scaled alike (a pixel's centre stays where it was: cx' = (cx + 0.5)
+sx - 0.5). Needs mcap and mcap-ros2-support (the test environment's target/pyenv has them;
+pillow for `--scale`).
 """
+import argparse
+import io
 import json
 import os
 import sys
@@ -110,10 +119,27 @@ def stamp_ns(h):
     return h.stamp.sec * 1_000_000_000 + h.stamp.nanosec
 
 
+def scaled(data, fmt, scale):
+    """The image's bytes resampled to `scale` times its size, and the (x, y) factors."""
+    from PIL import Image
+    img = Image.open(io.BytesIO(data)).convert("RGB")
+    w, h = max(1, round(img.width * scale)), max(1, round(img.height * scale))
+    out = io.BytesIO()
+    img.resize((w, h), Image.BICUBIC).save(out, "PNG" if "png" in fmt else "JPEG",
+                                           **({} if "png" in fmt else {"quality": 92}))
+    return out.getvalue(), (w / img.width, h / img.height)
+
+
 def main():
-    session, out = sys.argv[1], sys.argv[2]
+    ap = argparse.ArgumentParser()
+    ap.add_argument("session")
+    ap.add_argument("out")
+    ap.add_argument("--scale", type=float, default=1.0)
+    a = ap.parse_args()
+    session, out = a.session, a.out
     os.makedirs(os.path.join(out, "images"), exist_ok=True)
     frames, labels, gt_pose, k, d, truth, camera_frame = [], {}, {}, None, None, None, None
+    odom = {}
     # child frame -> (parent, transform) on /tf_static; -> (parent, [(stamp, transform)]) on /tf.
     static, dynamic = {}, {}
     with open(session, "rb") as f:
@@ -134,6 +160,8 @@ def main():
                     or [(msg.object, "", "", "", "")])
             elif t == "/ground_truth/pose":
                 gt_pose[stamp_ns(msg.header)] = pose(msg.pose.position, msg.pose.orientation)
+            elif t == "/odom":
+                odom[stamp_ns(msg.header)] = pose(msg.pose.pose.position, msg.pose.pose.orientation)
             elif t in ("/tf_static", "/tf"):
                 for tr in msg.transforms:
                     x = (tr.transform.translation, tr.transform.rotation)
@@ -144,33 +172,49 @@ def main():
                             (stamp_ns(tr.header), x))
             elif t == "/ground_truth/objects":
                 truth = msg
-    if not frames or k is None or truth is None:
-        sys.exit(f"{session}: needs frames, camera info and ground truth")
-    gt_times = np.array(sorted(gt_pose))
-    traj, rows = [], ["image,x,y,width,height,object"]
+    # A simulated session's poses are its ground truth; an imported capture has /odom alone.
+    poses = gt_pose or odom
+    if not frames or k is None or not poses:
+        sys.exit(f"{session}: needs frames, camera info and /ground_truth/pose or /odom")
+    pose_times = np.array(sorted(poses))
+    traj, rows, factors = [], ["image,x,y,width,height,object"], (1.0, 1.0)
     for t, fmt, data in frames:
-        # The robot stands still while it takes a frame: the nearest true pose is its pose,
-        # within 1 ms of the frame's stamp.
-        near = int(gt_times[np.argmin(np.abs(gt_times - t))])
+        # The robot stands still while it takes a frame (an imported capture's /odom is at
+        # the frame's stamp): the nearest pose is its pose, within 1 ms of the stamp.
+        near = int(pose_times[np.argmin(np.abs(pose_times - t))])
         if abs(near - t) > 1_000_000:
-            sys.exit(f"{session}: no true pose within 1 ms of the frame at {t} ns")
-        world_from_camera = gt_pose[near] @ mount_at(session, static, dynamic, camera_frame, t)
+            sys.exit(f"{session}: no pose within 1 ms of the frame at {t} ns")
+        world_from_camera = poses[near] @ mount_at(session, static, dynamic, camera_frame, t)
         q = rot_to_quat(world_from_camera[:3, :3])
         p = world_from_camera[:3, 3]
         name = f"{t / 1e9:.6f}.{'png' if 'png' in fmt else 'jpg'}"
+        if a.scale != 1.0:
+            data, factors = scaled(data, fmt, a.scale)
         open(os.path.join(out, "images", name), "wb").write(data)
         traj.append(f"{t / 1e9:.6f} {p[0]:.9f} {p[1]:.9f} {p[2]:.9f} {q[0]:.9f} {q[1]:.9f} {q[2]:.9f} {q[3]:.9f}")
+        sx, sy = factors
         for obj, x, y, w, h in labels.get(t, []):
+            if x != "" and a.scale != 1.0:
+                x0, y0 = round(x * sx), round(y * sy)
+                x, y, w, h = x0, y0, round((x + w) * sx) - x0, round((y + h) * sy) - y0
             rows.append(f"{name},{x},{y},{w},{h},{obj}")
     open(os.path.join(out, "trajectory.txt"), "w").write("# timestamp tx ty tz qx qy qz qw\n" + "\n".join(traj) + "\n")
     open(os.path.join(out, "labels.csv"), "w").write("\n".join(rows) + "\n")
-    open(os.path.join(out, "camera.txt"), "w").write(f"{k[0]},{k[4]},{k[2]},{k[5]}\n")
+    sx, sy = factors
+    fx, fy, cx, cy = k[0] * sx, k[4] * sy, (k[2] + 0.5) * sx - 0.5, (k[5] + 0.5) * sy - 0.5
+    open(os.path.join(out, "camera.txt"), "w").write(
+        f"{k[0]},{k[4]},{k[2]},{k[5]}\n" if a.scale == 1.0 else f"{fx!r},{fy!r},{cx!r},{cy!r}\n")
     # `--distortion K1,K2,P1,P2,K3` (ROS's d is k1, k2, p1, p2, k3): written only for a lens.
     dist = os.path.join(out, "distortion.txt")
     if any(v != 0 for v in d):
         open(dist, "w").write(",".join(repr(float(v)) for v in d) + "\n")
     elif os.path.exists(dist):
         os.remove(dist)
+    if truth is None:
+        if os.path.exists(os.path.join(out, "truth.json")):
+            os.remove(os.path.join(out, "truth.json"))
+        print(f"{len(frames)} frames, {len(rows) - 1} label rows -> {out} (no ground truth)")
+        return
     # Boxes of one name whose bounds touch (within 0.01 m, `eval::PART_TOUCH_M`) are one
     # instance (a chair's seat, back and legs), scored at their volume-weighted centroid, as
     # `objloc eval` groups them.
