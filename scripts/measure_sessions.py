@@ -9,6 +9,8 @@ Sets (each skipped with a message where its data is absent):
   heldout  our simulator's held-out-style tours (recorded into target/measure-heldout as
            scripts/measure_heldout.sh does: seeds 21/22, default and 5 %/3 % noise)
   foreign  ../shared/foreign/sessions (another renderer; --bounds from its manifest)
+  foreign-cross  the same tours, each fused with the model of its scene's other training
+           session (seed 1 for a seed-0 tour and the reverse)
   repeating  exact-odometry tours over checker, ring, stripe and tile floors (ATE must stay
            within 0.02 m of /odom's, which is 0)
   wide     the held-out-style scenes' tour seeds 1-8 at the default noise (48 low-noise tours)
@@ -163,18 +165,22 @@ def repeating_sessions():
                        bounds=ROOM, low_noise=True, truth=None, exact=True)
 
 
-def foreign_sessions():
+def foreign_sessions(cross=False):
+    """The foreign tours, each with its scene's training session of its own seed, or with
+    `cross` of the other seed (how much a result depends on the training session: a held-out
+    scene's is neither)."""
     manifest = json.load(open(os.path.join(FOREIGN, "manifest.json")))
     by_file = {s["file"]: s for s in manifest["sessions"]}
     for s in sorted(manifest["sessions"], key=lambda s: s["file"]):
         if s["kind"] != "tour":
             continue
-        train_file = "%s-train-s%d.mcap" % (s["scene"], s["seed"])
+        train_file = "%s-train-s%d.mcap" % (s["scene"], 1 - s["seed"] if cross else s["seed"])
         if train_file not in by_file:
             continue
         model = train(os.path.join(FOREIGN, train_file), os.path.join(OUT, "foreign-" + train_file.replace(".mcap", ".json")))
         b = s["room_bounds"]
-        yield dict(set="foreign", name=s["file"][:-5], session=os.path.join(FOREIGN, s["file"]), model=model,
+        yield dict(set="foreign-cross" if cross else "foreign", name=s["file"][:-5],
+                   session=os.path.join(FOREIGN, s["file"]), model=model,
                    bounds=",".join(str(v) for v in b["min"] + b["max"]), low_noise=s["noise_scale"] < 0.5,
                    truth=[o["centroid"] for o in s["objects"]])
 
@@ -231,11 +237,12 @@ def main():
         subprocess.run(["cargo", "build", "--release"], cwd=ROOT, check=True)
     modes = a.modes.split(",")
     gens = {"shipped": shipped_sessions, "heldout": heldout_sessions, "foreign": foreign_sessions,
+            "foreign-cross": lambda: foreign_sessions(cross=True),
             "repeating": repeating_sessions, "wide": wide_sessions, "small": small_sessions,
             "approach": approach_sessions}
     results = []
     for name in a.sets.split(","):
-        if name == "foreign" and not os.path.isdir(FOREIGN):
+        if name.startswith("foreign") and not os.path.isdir(FOREIGN):
             print("foreign: skipped, no %s" % FOREIGN)
             continue
         sessions = list(gens[name]())
