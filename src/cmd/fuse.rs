@@ -588,7 +588,11 @@ pub fn print_summary(f: &Fused) {
                 );
             }
         } else if let Some(why) = &o.not_from_detections {
-            say!("  located at the extent's centre: its detections do not triangulate: {why}");
+            // The extent's centre is the weaker estimate where nothing closes the hull below
+            // the object: the user should know this location is not the triangulated one.
+            say!(
+                "  located at the extent's centre, the weaker estimate where no floor closes the hull below the object (on the real captures 15-20 % of its size off; docs/realdata.md): its detections do not triangulate: {why}"
+            );
         }
     }
     for c in &r.fitted {
