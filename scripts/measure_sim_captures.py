@@ -9,7 +9,10 @@ many tours have the right count with every object within 0.12 m, and the mean er
 Sets: wide (our simulator's six held-out-style scenes, tour seeds 1-8: recorded by
 `scripts/measure_sessions.py --sets wide` first), mounts (a chair seen from a pan-tilt head,
 its mount chained through /tf, and through a barrel lens: scripts/heldout/chair-pan-tilt.json
-and chair-distorted.json, tour seeds 1-8, recorded here) and foreign (../shared/foreign:
+and chair-distorted.json, tour seeds 1-8, recorded here), arcs (the chair and the bin on a
+shelf, scripts/heldout/bin-on-shelf.json, with the tour's 8 stops on an arc of 45 or 90
+degrees instead of the whole circle, as a phone photographs an object on a shelf or against a
+wall from the front only; tour seeds 1-4, recorded here) and foreign (../shared/foreign:
 another renderer's rooms; skipped with a message where absent).
 
 Usage: scripts/measure_sim_captures.py [--sets wide,mounts,foreign] [--configs default,rgb332]
@@ -111,6 +114,25 @@ def pairs():
                      "-q", "-o", path])
             sessions.append(path)
         out.append(("mounts", sessions[0], sessions[1:]))
+    # Narrow arcs: the tour's 8 stops span 45 or 90 degrees instead of the whole circle, as
+    # a phone photographs an object on a shelf or against a wall from the front only.
+    for base, arc in [(os.path.join(ROOT, "crates", "core", "src", "sim", "scenes", "chair.json"), a)
+                      for a in (45, 90)] + [
+                     (os.path.join(ROOT, "scripts", "heldout", "bin-on-shelf.json"), a)
+                     for a in (45, 90)]:
+        scene = json.load(open(base))
+        scene["name"] = f"{scene['name']}-arc{arc}"
+        scene["path"]["tour_arc_deg"] = float(arc)
+        f = os.path.join(rec, scene["name"] + ".json")
+        json.dump(scene, open(f, "w"), indent=1)
+        sessions = []
+        for kind, seed in [("train", 11)] + [("tour", k) for k in range(1, 5)]:
+            path = os.path.join(rec, f"{scene['name']}-{kind}-{seed}.mcap")
+            if not os.path.exists(path):
+                run([BIN, "record", "sim", "--scene-file", f, "--kind", kind, "--seed", str(seed),
+                     "-q", "-o", path])
+            sessions.append(path)
+        out.append(("arcs", sessions[0], sessions[1:]))
     if os.path.isdir(FOREIGN):
         m = json.load(open(os.path.join(FOREIGN, "manifest.json")))
         for t in sorted(s["file"] for s in m["sessions"] if s["kind"] == "train"):
@@ -212,7 +234,8 @@ def main():
             if not rs:
                 continue
             print(f"{c:10s} {sum(r[3] for r in rs)}/{len(rs)} right count, all within {TARGET_M} m; "
-                  f"mean error {sum(errs) / max(1, len(errs)):.3f} m ({len(errs)} objects)")
+                  f"mean error {sum(errs) / max(1, len(errs)):.3f} m, worst {max(errs, default=0):.3f} m "
+                  f"({len(errs)} objects)")
             for r in rs:
                 if not r[3]:
                     print(f"    miss: {r[1]}: {', '.join(f'{e:.3f}' for e in r[4]) or '-'}")
