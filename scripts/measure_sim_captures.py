@@ -12,7 +12,9 @@ its mount chained through /tf, and through a barrel lens: scripts/heldout/chair-
 and chair-distorted.json, tour seeds 1-8, recorded here), arcs (the chair and the bin on a
 shelf, scripts/heldout/bin-on-shelf.json, with the tour's 8 stops on an arc of 45 or 90
 degrees instead of the whole circle, as a phone photographs an object on a shelf or against a
-wall from the front only; tour seeds 1-4, recorded here) and foreign (../shared/foreign:
+wall from the front only; tour seeds 1-4, recorded here), video (the same two scenes, 40
+stops 3 degrees apart on a 120-degree arc, as frames taken from a video; tour seeds 1-2) and
+foreign (../shared/foreign:
 another renderer's rooms; skipped with a message where absent).
 
 Usage: scripts/measure_sim_captures.py [--sets wide,mounts,foreign] [--configs default,rgb332]
@@ -115,24 +117,27 @@ def pairs():
             sessions.append(path)
         out.append(("mounts", sessions[0], sessions[1:]))
     # Narrow arcs: the tour's 8 stops span 45 or 90 degrees instead of the whole circle, as
-    # a phone photographs an object on a shelf or against a wall from the front only.
-    for base, arc in [(os.path.join(ROOT, "crates", "core", "src", "sim", "scenes", "chair.json"), a)
-                      for a in (45, 90)] + [
-                     (os.path.join(ROOT, "scripts", "heldout", "bin-on-shelf.json"), a)
-                     for a in (45, 90)]:
+    # a phone photographs an object on a shelf or against a wall from the front only; and
+    # video: 40 frames 3 degrees apart on a 120-degree arc, as frames taken from a video.
+    chair = os.path.join(ROOT, "crates", "core", "src", "sim", "scenes", "chair.json")
+    shelf = os.path.join(ROOT, "scripts", "heldout", "bin-on-shelf.json")
+    for set_name, base, arc, stops, seeds in (
+            [("arcs", b, a, 8, range(1, 5)) for b in (chair, shelf) for a in (45, 90)]
+            + [("video", b, 120, 40, range(1, 3)) for b in (chair, shelf)]):
         scene = json.load(open(base))
         scene["name"] = f"{scene['name']}-arc{arc}"
         scene["path"]["tour_arc_deg"] = float(arc)
         f = os.path.join(rec, scene["name"] + ".json")
         json.dump(scene, open(f, "w"), indent=1)
         sessions = []
-        for kind, seed in [("train", 11)] + [("tour", k) for k in range(1, 5)]:
-            path = os.path.join(rec, f"{scene['name']}-{kind}-{seed}.mcap")
+        for kind, seed in [("train", 11)] + [("tour", k) for k in seeds]:
+            suffix = f"-{stops}stops" if kind == "tour" and stops != 8 else ""
+            path = os.path.join(rec, f"{scene['name']}-{kind}-{seed}{suffix}.mcap")
             if not os.path.exists(path):
                 run([BIN, "record", "sim", "--scene-file", f, "--kind", kind, "--seed", str(seed),
-                     "-q", "-o", path])
+                     "--stops", str(stops), "-q", "-o", path])
             sessions.append(path)
-        out.append(("arcs", sessions[0], sessions[1:]))
+        out.append((set_name, sessions[0], sessions[1:]))
     if os.path.isdir(FOREIGN):
         m = json.load(open(os.path.join(FOREIGN, "manifest.json")))
         for t in sorted(s["file"] for s in m["sessions"] if s["kind"] == "train"):
