@@ -13,7 +13,8 @@ and chair-distorted.json, tour seeds 1-8, recorded here), arcs (the chair and th
 shelf, scripts/heldout/bin-on-shelf.json, with the tour's 8 stops on an arc of 45 or 90
 degrees instead of the whole circle, as a phone photographs an object on a shelf or against a
 wall from the front only; tour seeds 1-4, recorded here), video (the same two scenes, 40
-stops 3 degrees apart on a 120-degree arc, as frames taken from a video; tour seeds 1-2) and
+stops 3 degrees apart on a 120-degree arc, as frames taken from a video; tour seeds 1-2),
+distractor (the bin's room with its sofa painted nearly the bin's blue; tour seeds 1-4) and
 foreign (../shared/foreign:
 another renderer's rooms; skipped with a message where absent).
 
@@ -121,12 +122,21 @@ def pairs():
     # video: 40 frames 3 degrees apart on a 120-degree arc, as frames taken from a video.
     chair = os.path.join(ROOT, "crates", "core", "src", "sim", "scenes", "chair.json")
     shelf = os.path.join(ROOT, "scripts", "heldout", "bin-on-shelf.json")
+    # Distractor: the bin's room with its sofa painted nearly the bin's blue (as the issue's
+    # capture B has a blue-grey sofa the classifier fired on), the whole circle.
     for set_name, base, arc, stops, seeds in (
             [("arcs", b, a, 8, range(1, 5)) for b in (chair, shelf) for a in (45, 90)]
-            + [("video", b, 120, 40, range(1, 3)) for b in (chair, shelf)]):
+            + [("video", b, 120, 40, range(1, 3)) for b in (chair, shelf)]
+            + [("distractor", shelf, 360, 8, range(1, 5))]):
         scene = json.load(open(base))
-        scene["name"] = f"{scene['name']}-arc{arc}"
-        scene["path"]["tour_arc_deg"] = float(arc)
+        if set_name == "distractor":
+            scene["name"] += "-blue-sofa"
+            for prim in scene["primitives"]:
+                if prim.get("group") == "sofa":
+                    prim["material"]["color"] = [0.2, 0.32, 0.68]
+        else:
+            scene["name"] = f"{scene['name']}-arc{arc}"
+            scene["path"]["tour_arc_deg"] = float(arc)
         f = os.path.join(rec, scene["name"] + ".json")
         json.dump(scene, open(f, "w"), indent=1)
         sessions = []
