@@ -22,7 +22,8 @@ Sets (each skipped with a message where its data is absent):
 TRAIN_FLAGS in the environment are passed to `objloc train`.
 
 Usage: scripts/measure_sessions.py [--sets shipped,heldout,foreign] [--modes default,objects,odom]
-       [--json OUT.json] [-- extra fuse flags...]        (from the repository root)
+       [--no-bounds] [--json OUT.json] [-- extra fuse flags...]        (from the repository root)
+--no-bounds: fuse without the room's --bounds (the default grid around the cameras).
 Stdlib only; calls target/release/objloc (built if missing), or the binary OBJLOC_BIN names
 (to measure another build while this tree is rebuilt).
 """
@@ -45,6 +46,9 @@ MODES = {"default": [], "objects": ["--no-floor"], "odom": ["--no-refine-poses"]
          "wide": ["--sigma-v", "0.05", "--sigma-w", "0.03"]}
 TARGET_M = 0.12
 WORSE_M = 0.02
+# --no-bounds: every session fused without --bounds (the default grid around its cameras), as
+# a user who does not know the room's size would.
+NO_BOUNDS = False
 
 
 def run(args, **kw):
@@ -186,9 +190,10 @@ def foreign_sessions(cross=False):
 
 
 def fuse_and_eval(sess, mode, extra):
-    rep = os.path.join(OUT, "%s-%s-%s.json" % (sess["set"], sess["name"].replace("/", "_").replace("%", ""), mode))
+    rep = os.path.join(OUT, "%s-%s-%s%s.json" % (sess["set"], sess["name"].replace("/", "_").replace("%", ""), mode,
+                                               "-nobounds" if NO_BOUNDS else ""))
     args = [BIN, "fuse", sess["session"], "--model", sess["model"], "--report", rep, "--no-rerun"]
-    if sess["bounds"]:
+    if sess["bounds"] and not NO_BOUNDS:
         args.append("--bounds=" + sess["bounds"])
     run(args + MODES[mode] + extra)
     e = json.loads(run([BIN, "eval", sess["session"], "--report", rep, "--json"]))[0]
@@ -230,8 +235,12 @@ def main():
     ap.add_argument("--json")
     ap.add_argument("--markdown", help="also write the tables as markdown to this file")
     ap.add_argument("-j", type=int, default=2)
+    ap.add_argument("--no-bounds", action="store_true",
+                    help="fuse without --bounds (the default grid around the cameras)")
     ap.add_argument("extra", nargs="*")
     a = ap.parse_args()
+    global NO_BOUNDS
+    NO_BOUNDS = a.no_bounds
     os.makedirs(OUT, exist_ok=True)
     if not os.path.exists(BIN):
         subprocess.run(["cargo", "build", "--release"], cwd=ROOT, check=True)

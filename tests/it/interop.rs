@@ -506,7 +506,7 @@ fn rerun_converts_an_objloc_session_to_rrd() {
 fn rosbag2_bags() -> Option<Vec<PathBuf>> {
     let dir = repo_dir().join("../shared/thirdparty/rosbag2");
     if !dir.is_dir() {
-        eprintln!("skipped: no {} on this machine", dir.display());
+        crate::common::say_skipped(&format!("no {} on this machine", dir.display()));
         return None;
     }
     let mut bags: Vec<PathBuf> = std::fs::read_dir(&dir)

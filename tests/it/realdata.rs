@@ -14,7 +14,7 @@ fn realdata() -> Option<PathBuf> {
     if d.is_dir() {
         Some(d)
     } else {
-        eprintln!("skipped: no ../shared/realdata on this machine");
+        crate::common::say_skipped("no ../shared/realdata on this machine");
         None
     }
 }

@@ -323,7 +323,7 @@ fn foreign_dir() -> Option<PathBuf> {
 #[test]
 fn refinement_on_another_renderers_rooms_is_checked_and_rolled_back_by_its_rule() {
     let Some(dir_in) = foreign_dir() else {
-        eprintln!("skipped: no ../shared/foreign/sessions on this machine");
+        crate::common::say_skipped("no ../shared/foreign/sessions on this machine");
         return;
     };
     let manifest = json(&dir_in.join("manifest.json"));

@@ -17,6 +17,14 @@ use std::time::Duration;
 
 use serde_json::Value;
 
+/// Says that a test is skipped and why, on the process's real stderr: the harness captures
+/// `eprintln!` and shows a passing test's output to nobody, so CI's log would not say which
+/// data a machine lacked.
+pub fn say_skipped(why: &str) {
+    use std::io::Write;
+    let _ = writeln!(std::io::stderr(), "skipped: {why}");
+}
+
 /// The repository root (the root package's manifest directory).
 pub fn repo_dir() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
