@@ -24,6 +24,8 @@ TRAIN_FLAGS in the environment are passed to `objloc train`.
 Usage: scripts/measure_sessions.py [--sets shipped,heldout,foreign] [--modes default,objects,odom]
        [--no-bounds] [--json OUT.json] [-- extra fuse flags...]        (from the repository root)
 --no-bounds: fuse without the room's --bounds (the default grid around the cameras).
+--bounds-shift M: the bounds moved by M metres in x and y (0.02: half a cell), which moves
+where the cell boundaries fall against the scene.
 Stdlib only; calls target/release/objloc (built if missing), or the binary OBJLOC_BIN names
 (to measure another build while this tree is rebuilt).
 """
@@ -49,6 +51,10 @@ WORSE_M = 0.02
 # --no-bounds: every session fused without --bounds (the default grid around its cameras), as
 # a user who does not know the room's size would.
 NO_BOUNDS = False
+# --bounds-shift M: the bounds moved by M metres in x and y (the grid's cells then lie at
+# another phase against the scene: half a 4 cm cell is 0.02), to see what depends on where
+# the cell boundaries fall.
+BOUNDS_SHIFT_M = 0.0
 
 
 def run(args, **kw):
@@ -190,11 +196,13 @@ def foreign_sessions(cross=False):
 
 
 def fuse_and_eval(sess, mode, extra):
-    rep = os.path.join(OUT, "%s-%s-%s%s.json" % (sess["set"], sess["name"].replace("/", "_").replace("%", ""), mode,
-                                               "-nobounds" if NO_BOUNDS else ""))
+    tag = "-nobounds" if NO_BOUNDS else ("-shift%g" % BOUNDS_SHIFT_M if BOUNDS_SHIFT_M else "")
+    rep = os.path.join(OUT, "%s-%s-%s%s.json" % (sess["set"], sess["name"].replace("/", "_").replace("%", ""), mode, tag))
     args = [BIN, "fuse", sess["session"], "--model", sess["model"], "--report", rep, "--no-rerun"]
     if sess["bounds"] and not NO_BOUNDS:
-        args.append("--bounds=" + sess["bounds"])
+        b = [float(v) for v in sess["bounds"].split(",")]
+        b = [v + (BOUNDS_SHIFT_M if i % 3 < 2 else 0.0) for i, v in enumerate(b)]
+        args.append("--bounds=" + ",".join(repr(v) for v in b))
     run(args + MODES[mode] + extra)
     e = json.loads(run([BIN, "eval", sess["session"], "--report", rep, "--json"]))[0]
     r = json.load(open(rep))
@@ -237,10 +245,12 @@ def main():
     ap.add_argument("-j", type=int, default=2)
     ap.add_argument("--no-bounds", action="store_true",
                     help="fuse without --bounds (the default grid around the cameras)")
+    ap.add_argument("--bounds-shift", type=float, default=0.0, metavar="M",
+                    help="move every session's bounds by M metres in x and y")
     ap.add_argument("extra", nargs="*")
     a = ap.parse_args()
-    global NO_BOUNDS
-    NO_BOUNDS = a.no_bounds
+    global NO_BOUNDS, BOUNDS_SHIFT_M
+    NO_BOUNDS, BOUNDS_SHIFT_M = a.no_bounds, a.bounds_shift
     os.makedirs(OUT, exist_ok=True)
     if not os.path.exists(BIN):
         subprocess.run(["cargo", "build", "--release"], cwd=ROOT, check=True)

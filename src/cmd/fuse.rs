@@ -510,14 +510,21 @@ pub fn print_summary(f: &Fused) {
     } else {
         " (session units)"
     };
+    let (lo, hi) = (f.outcome.grid.spec.origin_m, f.outcome.grid.spec.max_m());
     say!(
-        "fused {} of {} frames into {} x {} x {} cells of {}{m} (prior {:.5}, grid sha256 {})",
+        "fused {} of {} frames into {} x {} x {} cells of {}{m} over ({:.2}, {:.2}, {:.2})..({:.2}, {:.2}, {:.2}) (prior {:.5}, grid sha256 {})",
         r.frames,
         r.frames_in_session,
         r.grid.dims[0],
         r.grid.dims[1],
         r.grid.dims[2],
         objloc_core::out::report::significant(r.grid.voxel_size_m, 5),
+        lo[0],
+        lo[1],
+        lo[2],
+        hi[0],
+        hi[1],
+        hi[2],
         r.grid.prior,
         &r.grid.sha256[..16]
     );

@@ -41,7 +41,7 @@ use prepare::{Context, Prepared, floor_params, prepare, step_image};
 
 use thiserror::Error;
 
-use crate::fuse::grid::{Budget, Grid, GridError, GridStorage};
+use crate::fuse::grid::{Budget, Grid, GridError, GridSpec, GridStorage};
 use crate::fuse::locate::{View, ray_centre};
 use crate::fuse::motion::{BlurMode, Segment};
 use crate::fuse::objects::{Object, ObjectParams, find_objects_with_cells};
@@ -438,6 +438,11 @@ pub fn replay(
 fn finish(ctx: Context<'_>, pass: Pass, refinement: Option<RefinementCheck>) -> Outcome {
     let grid = pass.fuser.grid;
     let with_cells = find_objects_with_cells(&grid, &ctx.options.objects);
+    let at_edges = if ctx.options.bounds_m.is_none() {
+        objects_at_default_edges(&ctx.data.path, &grid.spec, &with_cells)
+    } else {
+        Vec::new()
+    };
     let mut object_cells: Vec<usize> = with_cells
         .iter()
         .flat_map(|(_, c)| c.iter().copied())
@@ -448,6 +453,7 @@ fn finish(ctx: Context<'_>, pass: Pass, refinement: Option<RefinementCheck>) -> 
         locate_from_detections(&ctx, &pass.poses, &mut objects);
     }
     let mut warnings = ctx.warnings;
+    warnings.extend(at_edges);
     // Frames "fused" into a grid none of their views reaches leave it at the prior: say why
     // nothing was found instead of reporting an empty grid as a result.
     if !pass.per_frame.is_empty() && pass.per_frame.iter().all(|f| f.cells_updated == 0) {
@@ -470,6 +476,48 @@ fn finish(ctx: Context<'_>, pass: Pass, refinement: Option<RefinementCheck>) -> 
         options: ctx.options,
         choices: ctx.choices,
     }
+}
+
+/// A warning for each object with cells in the outermost layer of a side or the top of the
+/// default grid (the box of the camera positions: an object against a wall, beyond where the
+/// robot drove, can run past it, and its extent and location are then cut at the side). The
+/// floor is where objects stand, so the bottom is not a side.
+fn objects_at_default_edges(
+    path: &str,
+    spec: &GridSpec,
+    objects: &[(Object, Vec<usize>)],
+) -> Vec<String> {
+    let (lo, hi) = (spec.origin_m, spec.max_m());
+    let mut out = Vec::new();
+    for (k, (_, cells)) in objects.iter().enumerate() {
+        // (axis, at its upper end) of each side an object cell lies on.
+        let mut sides = std::collections::BTreeSet::new();
+        for &c in cells {
+            for (a, (i, n)) in spec.ijk(c).into_iter().zip(spec.dims).enumerate() {
+                if a < 2 && i == 0 {
+                    sides.insert((a, false));
+                }
+                if i + 1 == n {
+                    sides.insert((a, true));
+                }
+            }
+        }
+        if sides.is_empty() {
+            continue;
+        }
+        let named: Vec<String> = sides
+            .iter()
+            .map(|&(a, upper)| {
+                let v = if upper { hi[a] } else { lo[a] };
+                format!("{} = {v:.2}", ["x", "y", "z"][a])
+            })
+            .collect();
+        out.push(format!(
+            "{path}: object {k} reaches the edge of the default grid ({}): it may run past it, and its extent and location are then cut there (the default grid is the box of the camera positions plus {DEFAULT_BOUNDS_MARGIN_M} m; --bounds to widen it)",
+            named.join(", ")
+        ));
+    }
+    out
 }
 
 /// Replaces each object's location by the centre triangulated from its detections' boxes at

@@ -215,3 +215,40 @@ fn a_mount_that_no_transform_links_to_the_odom_frame_is_a_warning() {
         )
     );
 }
+
+/// An object with cells in the outermost x layer and the top layer of a 10 x 10 x 5 grid of
+/// 0.1 m from (-0.5, -0.5, 0) is said to reach those two sides, with their coordinates; one
+/// standing on the bottom layer only is not (the floor is where objects stand).
+#[test]
+fn objects_reaching_the_default_grids_sides_are_named_with_the_sides() {
+    let spec = GridSpec::from_bounds([-0.5, -0.5, 0.0], [0.5, 0.5, 0.5], 0.1).unwrap();
+    assert_eq!(spec.dims, [10, 10, 5]);
+    let object = Object {
+        centroid_m: [0.0; 3],
+        mass_centroid_m: [0.0; 3],
+        bbox_min_m: [0.0; 3],
+        bbox_max_m: [0.0; 3],
+        cells: 2,
+        peak_probability: 1.0,
+        mean_probability: 1.0,
+        peak_log_odds: 10.0,
+        from_detections: None,
+        extent_centre_m: None,
+        not_from_detections: None,
+        weaker_instance: None,
+    };
+    let at_side = vec![spec.index(9, 4, 2), spec.index(4, 4, 4)];
+    let on_floor = vec![spec.index(4, 4, 0), spec.index(5, 5, 1)];
+    let said = objects_at_default_edges(
+        "s.mcap",
+        &spec,
+        &[(object.clone(), on_floor), (object, at_side)],
+    );
+    assert_eq!(said.len(), 1, "{said:?}");
+    assert!(
+        said[0].starts_with(
+            "s.mcap: object 1 reaches the edge of the default grid (x = 0.50, z = 0.50): it may run past it"
+        ),
+        "{said:?}"
+    );
+}
