@@ -624,19 +624,7 @@ fn a_camera_on_a_pan_tilt_head_is_located_through_tf() {
     let scene = repo_dir().join("scripts/heldout/chair-pan-tilt.json");
     for kind in ["train", "tour"] {
         let out = d.join(format!("{kind}.mcap"));
-        let args = [
-            "record",
-            "sim",
-            "--scene-file",
-            p(&scene),
-            "--kind",
-            kind,
-            "--seed",
-            "3",
-            "-o",
-            p(&out),
-        ];
-        ok(&objloc(&args, &[]));
+        crate::common::record_scene_file(&scene, kind, "3", &out, &[]);
     }
     let model = d.join("m.json");
     let train = d.join("train.mcap");
@@ -822,19 +810,7 @@ fn a_distorted_lens_locates_the_chair_as_well_as_a_pinhole() {
         let file = repo_dir().join(format!("scripts/heldout/{scene}.json"));
         for kind in ["train", "tour"] {
             let out = d.join(format!("{scene}-{kind}.mcap"));
-            let args = [
-                "record",
-                "sim",
-                "--scene-file",
-                p(&file),
-                "--kind",
-                kind,
-                "--seed",
-                "5",
-                "-o",
-                p(&out),
-            ];
-            ok(&objloc(&args, &[]));
+            crate::common::record_scene_file(&file, kind, "5", &out, &[]);
         }
         let model = d.join(format!("{scene}.json"));
         let train = d.join(format!("{scene}-train.mcap"));

@@ -1053,22 +1053,7 @@ fn a_simulated_tour_imported_as_a_capture_finds_its_chair() {
     ] {
         if case == "lens" {
             for (kind, seed, out) in [("train", "11", &train), ("tour", "1", &tour)] {
-                ok(&objloc(
-                    &[
-                        "record",
-                        "sim",
-                        "--scene-file",
-                        p(&lens),
-                        "--kind",
-                        kind,
-                        "--seed",
-                        seed,
-                        "-q",
-                        "-o",
-                        p(out),
-                    ],
-                    &[],
-                ));
+                crate::common::record_scene_file(&lens, kind, seed, out, &["-q"]);
             }
         }
         let train_capture = as_capture(dir.path(), &train, &format!("{case}-train"));
@@ -1352,22 +1337,7 @@ fn a_capture_whose_rays_span_too_little_is_located_at_its_extent_and_says_so() {
     let scene_file = dir.path().join("chair-narrow.json");
     std::fs::write(&scene_file, scene.to_string()).unwrap();
     let sim = dir.path().join("narrow-sim.mcap");
-    ok(&objloc(
-        &[
-            "record",
-            "sim",
-            "--scene-file",
-            p(&scene_file),
-            "--kind",
-            "tour",
-            "--seed",
-            "1",
-            "-q",
-            "-o",
-            p(&sim),
-        ],
-        &[],
-    ));
+    crate::common::record_scene_file(&scene_file, "tour", "1", &sim, &["-q"]);
     let tour = as_capture(dir.path(), &sim, "narrow");
     let train = as_capture(
         dir.path(),

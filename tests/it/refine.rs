@@ -283,20 +283,7 @@ fn a_repeating_floor_does_not_move_exact_odometry() {
     let scene = repo_dir().join("scripts/heldout/chair-checker-floor.json");
     let record = |kind: &str, seed: &str, extra: &[&str]| {
         let out = dir.path().join(format!("{kind}.mcap"));
-        let mut args = vec![
-            "record",
-            "sim",
-            "--scene-file",
-            p(&scene),
-            "--kind",
-            kind,
-            "--seed",
-            seed,
-            "-o",
-            p(&out),
-        ];
-        args.extend_from_slice(extra);
-        ok(&objloc(&args, &[]));
+        crate::common::record_scene_file(&scene, kind, seed, &out, extra);
         out
     };
     let train_session = record("train", "11", &[]);

@@ -25,6 +25,25 @@ pub fn say_skipped(why: &str) {
     let _ = writeln!(std::io::stderr(), "skipped: {why}");
 }
 
+/// `objloc record sim --scene-file scene --kind kind --seed seed -o out` and `extra` flags
+/// (say `-q`, `--speed-noise 0,0`), which must succeed.
+pub fn record_scene_file(scene: &Path, kind: &str, seed: &str, out: &Path, extra: &[&str]) {
+    let mut args = vec![
+        "record",
+        "sim",
+        "--scene-file",
+        p(scene),
+        "--kind",
+        kind,
+        "--seed",
+        seed,
+        "-o",
+        p(out),
+    ];
+    args.extend_from_slice(extra);
+    ok(&objloc(&args, &[]));
+}
+
 /// The repository root (the root package's manifest directory).
 pub fn repo_dir() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))

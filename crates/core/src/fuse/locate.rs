@@ -306,20 +306,7 @@ mod tests {
     }
 
     fn object(centroid: [f64; 3], half: f64) -> Object {
-        Object {
-            centroid_m: centroid,
-            mass_centroid_m: centroid,
-            bbox_min_m: centroid.map(|c| c - half),
-            bbox_max_m: centroid.map(|c| c + half),
-            cells: 100,
-            peak_probability: 1.0,
-            mean_probability: 1.0,
-            peak_log_odds: 10.0,
-            from_detections: None,
-            extent_centre_m: None,
-            not_from_detections: None,
-            weaker_instance: None,
-        }
+        Object::cube(centroid, half)
     }
 
     /// Six cameras on a circle 2 m from a point, 1.2 m up, pitched down at it: every box is

@@ -755,6 +755,28 @@ fn weighted_quantiles(mass: &[f64], total: f64, trim: f64) -> (f64, f64) {
 }
 
 #[cfg(test)]
+impl Object {
+    /// A test object: its extent a cube of half-side `half` about `centroid` (which is also
+    /// its mass centroid), 100 cells, certain, located by its extent.
+    pub(crate) fn cube(centroid: [f64; 3], half: f64) -> Self {
+        Self {
+            centroid_m: centroid,
+            mass_centroid_m: centroid,
+            bbox_min_m: centroid.map(|c| c - half),
+            bbox_max_m: centroid.map(|c| c + half),
+            cells: 100,
+            peak_probability: 1.0,
+            mean_probability: 1.0,
+            peak_log_odds: 10.0,
+            from_detections: None,
+            extent_centre_m: None,
+            not_from_detections: None,
+            weaker_instance: None,
+        }
+    }
+}
+
+#[cfg(test)]
 mod tests {
     use super::*;
     use crate::fuse::grid::GridSpec;

@@ -464,18 +464,11 @@ mod tests {
 
     fn obj(c: [f64; 3]) -> Object {
         Object {
-            centroid_m: c,
-            mass_centroid_m: c,
-            bbox_min_m: c,
-            bbox_max_m: c,
             cells: 10,
             peak_probability: 0.99,
             mean_probability: 0.9,
             peak_log_odds: 5.0,
-            from_detections: None,
-            extent_centre_m: None,
-            not_from_detections: None,
-            weaker_instance: None,
+            ..Object::cube(c, 0.0)
         }
     }
 

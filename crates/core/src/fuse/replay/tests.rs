@@ -223,20 +223,7 @@ fn a_mount_that_no_transform_links_to_the_odom_frame_is_a_warning() {
 fn objects_reaching_the_default_grids_sides_are_named_with_the_sides() {
     let spec = GridSpec::from_bounds([-0.5, -0.5, 0.0], [0.5, 0.5, 0.5], 0.1).unwrap();
     assert_eq!(spec.dims, [10, 10, 5]);
-    let object = Object {
-        centroid_m: [0.0; 3],
-        mass_centroid_m: [0.0; 3],
-        bbox_min_m: [0.0; 3],
-        bbox_max_m: [0.0; 3],
-        cells: 2,
-        peak_probability: 1.0,
-        mean_probability: 1.0,
-        peak_log_odds: 10.0,
-        from_detections: None,
-        extent_centre_m: None,
-        not_from_detections: None,
-        weaker_instance: None,
-    };
+    let object = Object::cube([0.0; 3], 0.0);
     let at_side = vec![spec.index(9, 4, 2), spec.index(4, 4, 4)];
     let on_floor = vec![spec.index(4, 4, 0), spec.index(5, 5, 1)];
     let said = objects_at_default_edges(
