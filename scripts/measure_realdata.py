@@ -201,6 +201,8 @@ def main():
     ap.add_argument("--via-tum", type=float, metavar="SCALE")
     ap.add_argument("fuse_flags", nargs="*")
     a = ap.parse_args()
+    if a.via_tum is not None and not 0 < a.via_tum < float("inf"):
+        ap.error(f"--via-tum {a.via_tum}: the scale must be a positive number")
     if not os.path.isdir(DATA):
         print(f"skipped: {DATA} is absent")
         return

@@ -136,7 +136,11 @@ def main():
     ap.add_argument("out")
     ap.add_argument("--scale", type=float, default=1.0)
     a = ap.parse_args()
+    if not 0 < a.scale < float("inf"):
+        ap.error(f"--scale {a.scale}: must be a positive number")
     session, out = a.session, a.out
+    if not os.path.isfile(session):
+        sys.exit(f"{session}: no such session file")
     os.makedirs(os.path.join(out, "images"), exist_ok=True)
     frames, labels, gt_pose, k, d, truth, camera_frame = [], {}, {}, None, None, None, None
     odom = {}
@@ -248,4 +252,13 @@ def main():
 
 
 if __name__ == "__main__":
-    main()
+    try:
+        main()
+    except (OSError, ValueError, KeyError, EOFError) as e:
+        # A damaged or foreign file: one line naming it, not a traceback (mcap's
+        # InvalidMagic and its record errors are ValueErrors or of their own kind, below).
+        sys.exit(f"{sys.argv[1]}: {type(e).__name__}: {e}")
+    except Exception as e:  # noqa: BLE001 - mcap's own exception classes, reported the same
+        if type(e).__module__.startswith("mcap"):
+            sys.exit(f"{sys.argv[1]}: not a readable MCAP session: {e}")
+        raise
