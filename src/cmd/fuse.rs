@@ -575,9 +575,10 @@ pub fn print_summary(f: &Fused) {
                 "  a weaker instance: its evidence peaks at {f:.2} of the grid's highest (found apart from the objects above it, every frame that saw it agreeing: less certain than they are)"
             );
         }
+        let grid_name = o.grid_location_name(r.grid.voxel_size_m);
         if let (Some(d), Some(e)) = (&o.from_detections, &o.extent_centre_m) {
             say!(
-                "  located from {} frames' detection boxes (rays {:.1} deg apart at most, rms miss {:.4}{m}); the extent's centre was ({:.3}, {:.3}, {:.3})",
+                "  located from {} frames' detection boxes (rays {:.1} deg apart at most, rms miss {:.4}{m}); the {grid_name} was ({:.3}, {:.3}, {:.3})",
                 d.rays,
                 d.spread_deg,
                 d.rms_miss_m,
@@ -587,7 +588,7 @@ pub fn print_summary(f: &Fused) {
             );
             if let Some(f) = d.first_choice_centre_m {
                 say!(
-                    "  its rays chosen again {} time(s) around where they met: the first choice, around the extent's centre, gave ({:.3}, {:.3}, {:.3})",
+                    "  its rays chosen again {} time(s) around where they met: the first choice, around the {grid_name}, gave ({:.3}, {:.3}, {:.3})",
                     d.rechosen,
                     f[0],
                     f[1],
@@ -598,7 +599,7 @@ pub fn print_summary(f: &Fused) {
             // The extent's centre is the weaker estimate where nothing closes the hull below
             // the object: the user should know this location is not the triangulated one.
             say!(
-                "  located at the extent's centre, the weaker estimate where no floor closes the hull below the object (on the real captures 15-20 % of its size off; docs/realdata.md): its detections do not triangulate: {why}"
+                "  located at the {grid_name}, the weaker estimate where no floor closes the hull below the object (on the real captures 15-20 % of its size off; docs/realdata.md): its detections do not triangulate: {why}"
             );
         }
     }

@@ -146,6 +146,25 @@ pub const EXTENT_TRIM: f64 = 0.01;
 /// results, and low-noise tours worse than `--no-refine-poses` fell from 7 to 1.
 pub const COMPACT_MAX_CELLS: f64 = 5.0;
 
+/// Whether a box from `lo` to `hi` (whole cells of `voxel_size_m`) is compact in the sense of
+/// [`COMPACT_MAX_CELLS`], with half a cell of slack against rounding.
+fn is_compact(lo: &[f64; 3], hi: &[f64; 3], voxel_size_m: f64) -> bool {
+    (0..3).all(|a| hi[a] - lo[a] <= (COMPACT_MAX_CELLS + 0.5) * voxel_size_m)
+}
+
+impl Object {
+    /// What the grid's location of this object (`centroid_m` before any triangulation) is,
+    /// for messages: its mass centroid when compact ([`COMPACT_MAX_CELLS`] in a grid of
+    /// `voxel_size_m`), else its extent's centre.
+    pub fn grid_location_name(&self, voxel_size_m: f64) -> &'static str {
+        if is_compact(&self.bbox_min_m, &self.bbox_max_m, voxel_size_m) {
+            "mass centroid"
+        } else {
+            "extent's centre"
+        }
+    }
+}
+
 /// Cell state while labelling.
 const NONE: u8 = 0;
 const GROW: u8 = 1;
@@ -724,9 +743,7 @@ fn summarize(grid: &Grid, members: &[usize]) -> Object {
         }
     }
     let mass_centroid_m = [c[0] / w, c[1] / w, c[2] / w];
-    // Half a cell of slack: the sides are whole cells, up to rounding.
-    let compact = (0..3).all(|a| hi[a] - lo[a] <= (COMPACT_MAX_CELLS + 0.5) * v);
-    let centroid_m = if compact {
+    let centroid_m = if is_compact(&lo, &hi, v) {
         mass_centroid_m
     } else {
         std::array::from_fn(|a| {
@@ -883,6 +900,7 @@ mod tests {
         assert_eq!(cube.len(), 1);
         assert_eq!(cube[0].cells, 27);
         assert_eq!(cube[0].centroid_m, cube[0].mass_centroid_m);
+        assert_eq!(cube[0].grid_location_name(0.05), "mass centroid");
         // Its middle is x = 5.5 cells (0.275 m); the mass leans to the strong layers by
         // 0.016 cells (p 0.9955 twice, 0.948 once).
         let x = cube[0].centroid_m[0];
@@ -891,6 +909,7 @@ mod tests {
         assert_eq!(bar.len(), 1);
         let (e, m) = (bar[0].centroid_m[0], bar[0].mass_centroid_m[0]);
         assert!((e - m).abs() > 1e-4, "extent {e} mass {m}");
+        assert_eq!(bar[0].grid_location_name(0.05), "extent's centre");
         // The extent's centre: (1 % and 99 % of the mass along x, in cell faces) / 2.
         let lp = |ev: f64| sigmoid(ev + crate::fuse::grid::logit(0.01));
         let mut along = vec![0.0; 20];
