@@ -16,6 +16,10 @@ Sets (each skipped with a message where its data is absent):
   wide     the held-out-style scenes' tour seeds 1-8 at the default noise (48 low-noise tours)
   small    two 11 cm mugs, one on a table, one on the floor (scripts/heldout/two-mugs.json):
            seeds 21/22 at the default noise and at 5 %/3 %, and seeds 1-8 at the default noise
+  shelf    issue #19's other two scenes in our simulator, the robot's circle 1.6 m round the
+           object: a blue bin on a shelf and a watering can on a table
+           (scripts/heldout/{bin-on-shelf,watering-can}.json): seeds 21/22 at the default noise
+           and at 5 %/3 %, and seeds 1-4 at the default noise
   approach tours shaped as the foreign renderer's: a first frame about 3 m out, then 9 stops on a
            225-degree arc of 1.5-1.6 m (scripts/heldout/{chair,two-mugs}-approach.json), seeds
            1-6 at 1 %/0.6 % and at 5 %/3 %
@@ -125,6 +129,24 @@ def small_sessions():
         sim_record(sargs + ["--kind", "tour", "--seed", str(seed)] + extra, path)
         yield dict(set="small", name="two-mugs-%s-%d" % ("5%/3%" if extra else "default", seed),
                    session=path, model=model, bounds=ROOM, low_noise=(noise == "default"), truth=None)
+
+
+def shelf_sessions():
+    """Issue #19's blue bin on a shelf and watering can on a table (docs/fuser.md, "Two more
+    of the issue's scenes in our simulator")."""
+    os.makedirs(HELDOUT, exist_ok=True)
+    for scene in ["bin-on-shelf", "watering-can"]:
+        sargs = ["--scene-file", os.path.join(ROOT, "scripts", "heldout", scene + ".json")]
+        tr = sim_record(sargs + ["--kind", "train", "--seed", "11"], os.path.join(HELDOUT, scene + "-train.mcap"))
+        model = train(tr, os.path.join(OUT, "heldout-%s.json" % scene))
+        tours = [("default", s) for s in (21, 22)] + [("0.05,0.03", s) for s in (21, 22)]
+        tours += [("default", s) for s in range(1, 5)]
+        for noise, seed in tours:
+            extra = [] if noise == "default" else ["--speed-noise", noise]
+            path = os.path.join(HELDOUT, "%s-%s-%d.mcap" % (scene, noise, seed))
+            sim_record(sargs + ["--kind", "tour", "--seed", str(seed)] + extra, path)
+            yield dict(set="shelf", name="%s-%s-%d" % (scene, "5%/3%" if extra else "default", seed),
+                       session=path, model=model, bounds=ROOM, low_noise=(noise == "default"), truth=None)
 
 
 def approach_sessions():
@@ -258,6 +280,7 @@ def main():
     gens = {"shipped": shipped_sessions, "heldout": heldout_sessions, "foreign": foreign_sessions,
             "foreign-cross": lambda: foreign_sessions(cross=True),
             "repeating": repeating_sessions, "wide": wide_sessions, "small": small_sessions,
+            "shelf": shelf_sessions,
             "approach": approach_sessions}
     results = []
     for name in a.sets.split(","):
