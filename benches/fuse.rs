@@ -521,6 +521,12 @@ fn main() {
             summary
         );
     }
+    numpy_peer(at100);
+}
+
+/// The same grid operations in numpy (`scripts/numpy_peer.py`), run in the same process tree
+/// and reported as ratios against `at100` (objloc's update and blur medians at 100^3, ms).
+fn numpy_peer(at100: (f64, f64)) {
     let py = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("target/pyenv/bin/python");
     let script = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/numpy_peer.py");
     if py.exists() {

@@ -552,56 +552,7 @@ pub fn print_summary(f: &Fused) {
         }
     }
     for (i, o) in r.objects.iter().enumerate() {
-        say!(
-            "object {i}: at ({:.3}, {:.3}, {:.3}){m} (mass centroid ({:.3}, {:.3}, {:.3})), box ({:.2}, {:.2}, {:.2})..({:.2}, {:.2}, {:.2}), {} cells, peak p {:.4}, mean p {:.4}",
-            o.centroid_m[0],
-            o.centroid_m[1],
-            o.centroid_m[2],
-            o.mass_centroid_m[0],
-            o.mass_centroid_m[1],
-            o.mass_centroid_m[2],
-            o.bbox_min_m[0],
-            o.bbox_min_m[1],
-            o.bbox_min_m[2],
-            o.bbox_max_m[0],
-            o.bbox_max_m[1],
-            o.bbox_max_m[2],
-            o.cells,
-            o.peak_probability,
-            o.mean_probability
-        );
-        if let Some(f) = o.weaker_instance {
-            say!(
-                "  a weaker instance: its evidence peaks at {f:.2} of the grid's highest (found apart from the objects above it, every frame that saw it agreeing: less certain than they are)"
-            );
-        }
-        let grid_name = o.grid_location_name(r.grid.voxel_size_m);
-        if let (Some(d), Some(e)) = (&o.from_detections, &o.extent_centre_m) {
-            say!(
-                "  located from {} frames' detection boxes (rays {:.1} deg apart at most, rms miss {:.4}{m}); the {grid_name} was ({:.3}, {:.3}, {:.3})",
-                d.rays,
-                d.spread_deg,
-                d.rms_miss_m,
-                e[0],
-                e[1],
-                e[2]
-            );
-            if let Some(f) = d.first_choice_centre_m {
-                say!(
-                    "  its rays chosen again {} time(s) around where they met: the first choice, around the {grid_name}, gave ({:.3}, {:.3}, {:.3})",
-                    d.rechosen,
-                    f[0],
-                    f[1],
-                    f[2]
-                );
-            }
-        } else if let Some(why) = &o.not_from_detections {
-            // The extent's centre is the weaker estimate where nothing closes the hull below
-            // the object: the user should know this location is not the triangulated one.
-            say!(
-                "  located at the {grid_name}, the weaker estimate where no floor closes the hull below the object (on the real captures 15-20 % of its size off; docs/realdata.md): its detections do not triangulate: {why}"
-            );
-        }
+        print_object(i, o, r.grid.voxel_size_m, m);
     }
     for c in &r.fitted {
         say!("fitted to the session: {c}");
@@ -610,6 +561,61 @@ pub fn print_summary(f: &Fused) {
         print_refinement(r);
     }
     super::print_warnings(&r.warnings);
+}
+
+/// One located object's lines: where it is, and where that location comes from (`m` is the
+/// unit suffix, " m" or " (session units)").
+fn print_object(i: usize, o: &objloc_core::fuse::objects::Object, voxel_size_m: f64, m: &str) {
+    say!(
+        "object {i}: at ({:.3}, {:.3}, {:.3}){m} (mass centroid ({:.3}, {:.3}, {:.3})), box ({:.2}, {:.2}, {:.2})..({:.2}, {:.2}, {:.2}), {} cells, peak p {:.4}, mean p {:.4}",
+        o.centroid_m[0],
+        o.centroid_m[1],
+        o.centroid_m[2],
+        o.mass_centroid_m[0],
+        o.mass_centroid_m[1],
+        o.mass_centroid_m[2],
+        o.bbox_min_m[0],
+        o.bbox_min_m[1],
+        o.bbox_min_m[2],
+        o.bbox_max_m[0],
+        o.bbox_max_m[1],
+        o.bbox_max_m[2],
+        o.cells,
+        o.peak_probability,
+        o.mean_probability
+    );
+    if let Some(f) = o.weaker_instance {
+        say!(
+            "  a weaker instance: its evidence peaks at {f:.2} of the grid's highest (found apart from the objects above it, every frame that saw it agreeing: less certain than they are)"
+        );
+    }
+    let grid_name = o.grid_location_name(voxel_size_m);
+    if let (Some(d), Some(e)) = (&o.from_detections, &o.extent_centre_m) {
+        say!(
+            "  located from {} frames' detection boxes (rays {:.1} deg apart at most, rms miss {:.4}{m}); the {grid_name} was ({:.3}, {:.3}, {:.3})",
+            d.rays,
+            d.spread_deg,
+            d.rms_miss_m,
+            e[0],
+            e[1],
+            e[2]
+        );
+        if let Some(f) = d.first_choice_centre_m {
+            say!(
+                "  its rays chosen again {} time(s) around where they met: the first choice, around the {grid_name}, gave ({:.3}, {:.3}, {:.3})",
+                d.rechosen,
+                f[0],
+                f[1],
+                f[2]
+            );
+        }
+    } else if let Some(why) = &o.not_from_detections {
+        // The extent's centre is the weaker estimate where nothing closes the hull below
+        // the object: the user should know this location is not the triangulated one.
+        say!(
+            "  located at the {grid_name}, the weaker estimate where no floor closes the hull below the object (on the real captures 15-20 % of its size off; docs/realdata.md): its detections do not triangulate: {why}"
+        );
+    }
 }
 
 /// What refinement did: the frames per verdict, how far the poses moved off /odom, whether
