@@ -100,6 +100,13 @@ pub struct FuseArgs {
     /// does not see a flat floor around the robot).
     #[arg(long, conflicts_with = "no_refine_poses")]
     pub no_floor: bool,
+    /// Keep the filter's poses: no second solution of every pose over the whole replay.
+    /// By default a refined replay's poses are solved again together (every frame's
+    /// detections of every object under the motion model, frames the floor placed held
+    /// there) and kept when their grid finds as many objects (docs/fuser.md, "A smoother
+    /// over the whole replay").
+    #[arg(long, conflicts_with = "no_refine_poses")]
+    pub no_smooth: bool,
     /// Where an object's location comes from: the centre of its `extent` in the grid, or
     /// the centre triangulated from its `detections`' boxes. Default: the extent for a
     /// ground robot's session (with /cmd_vel), the detections otherwise (docs/realdata.md).
@@ -245,6 +252,7 @@ impl FuseArgs {
             },
             max_footprint_voxels: self.max_footprint.0,
             grid_storage: self.grid_storage,
+            smooth_poses: !self.no_smooth,
         }
         .normalised()
     }
@@ -675,6 +683,22 @@ fn print_refinement(r: &Report) {
                 c.reason
                     .as_deref()
                     .unwrap_or("the refined poses explained the frames worse")
+            );
+        }
+        if let Some(sm) = &c.smoothing {
+            say!(
+                "smoothed over the whole replay{}: {} ({} detections; frames moved at most {:.3}{} and {:.1} deg from the {} poses)",
+                if sm.kept { "" } else { " (NOT KEPT)" },
+                sm.reason,
+                sm.observations,
+                sm.max_move_m,
+                if r.fitted.is_empty() {
+                    " m"
+                } else {
+                    " (session units)"
+                },
+                sm.max_turn_deg,
+                if c.rolled_back { "/odom" } else { "refined" },
             );
         }
     }

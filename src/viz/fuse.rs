@@ -119,6 +119,8 @@ enum Message {
     Start(Box<StartMessage>),
     Frame(Box<FrameMessage>),
     Rollback,
+    /// The poses were solved again over the whole replay; the frames come again.
+    Smoothed,
     /// The objects of the final grid (with any weaker instances, which the frames' lists
     /// do not look for).
     Final(Vec<Object>),
@@ -365,6 +367,7 @@ impl Logger {
             Message::Start(m) => self.start(&m),
             Message::Frame(m) => self.frame(&m),
             Message::Rollback => self.rollback(),
+            Message::Smoothed => self.smoothed(),
             Message::Final(objects) => self.final_objects(&objects),
         }
     }
@@ -721,6 +724,19 @@ impl Logger {
 impl Logger {
     /// The frames come again at /odom, logged over the refined pass at the same times; the
     /// refined track restarts with each frame's verdict (rolled-back frames red).
+    fn smoothed(&mut self) -> Result<(), VizError> {
+        self.refined_track.clear();
+        self.refined_colors.clear();
+        self.rec
+            .log(
+                VERDICT_LOG,
+                &rerun::TextLog::new(
+                    "SMOOTHED: every pose was solved again over the whole replay and kept (its grid finds as many objects); the replay is fused again at those poses",
+                )
+                .with_level(rerun::TextLogLevel::INFO),
+            )
+            .map_err(log_err)
+    }
     fn rollback(&mut self) -> Result<(), VizError> {
         self.refined_track.clear();
         self.refined_colors.clear();
@@ -772,5 +788,8 @@ impl Observer for FuseViz {
     }
     fn on_rollback(&mut self, _data: &SessionData) -> Result<(), ObserverError> {
         Ok(self.send(Message::Rollback)?)
+    }
+    fn on_smoothed(&mut self, _data: &SessionData) -> Result<(), ObserverError> {
+        Ok(self.send(Message::Smoothed)?)
     }
 }

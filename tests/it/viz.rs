@@ -137,6 +137,8 @@ fn assert_frames_are_the_sessions_pngs(rrd: &Path) {
     let key = |v: &Value| v.to_string();
     logged.sort_by_key(key);
     want.sort_by_key(key);
+    // A pass shown again (a kept smoothing, a rollback) logs the same frames again.
+    logged.dedup();
     assert_eq!(logged, want);
     let media: Vec<&Value> = chunks
         .as_array()
@@ -172,6 +174,17 @@ fn fuse_recording_verifies_holds_the_documented_entities_and_replays_equal() {
         .map(|i| 1_700_000_001_000_000_000 + i * 15_028_000_000)
         .collect();
     assert_eq!(log_times, want);
+    // A kept smoothing shows the frames again, fused at the smoothed poses (the viewer's
+    // latest-at shows that pass): each per-frame entity holds every frame once per pass.
+    let passes = 1 + usize::from(report["refinement"]["smoothing"]["kept"] == true);
+    // (Rows come sorted by time.)
+    let want_rows: Vec<u64> = want
+        .iter()
+        .flat_map(|&t| std::iter::repeat_n(t, passes))
+        .collect();
+    let want_frames: Vec<u64> = (0..8)
+        .flat_map(|f| std::iter::repeat_n(f, passes))
+        .collect();
     // On one thread (a chunk cut by the SDK's size of a row once differed between thread
     // counts; src/viz/mod.rs, deterministic_batches).
     fuse_to_rrd_env(&model, &b, &[], &[("RAYON_NUM_THREADS", "1")]);
@@ -247,12 +260,8 @@ fn fuse_recording_verifies_holds_the_documented_entities_and_replays_equal() {
         assert!(cols.iter().all(|c| c != "log_tick"), "{entity}: {cols:?}");
         let e = &v[*entity];
         assert_eq!(e["static"], false, "{entity}");
-        assert_eq!(u64s(&e["log_time"]), want, "{entity} log_time");
-        assert_eq!(
-            u64s(&e["frame"]),
-            (0..8).collect::<Vec<u64>>(),
-            "{entity} frame"
-        );
+        assert_eq!(u64s(&e["log_time"]), want_rows, "{entity} log_time");
+        assert_eq!(u64s(&e["frame"]), want_frames, "{entity} frame");
     }
     // The centroid error is plotted only for frames with an object (unit-tested in
     // src/viz/fuse.rs); whatever frames it has are fused frames.
@@ -516,11 +525,13 @@ fn refined_replay_streams_the_refined_trajectory_beside_the_robot_in_world_coord
             );
         }
     }
-    // Logged at each frame after the anchoring first one; the last track holds all 8
-    // positions, starting at the first frame's, which is /odom's there.
+    // Logged at each frame after the anchoring first one, once per pass shown (a kept
+    // smoothing shows the frames again); the last track holds all 8 positions, starting at
+    // the first frame's, which is /odom's there.
+    let passes = 1 + usize::from(json(&report)["refinement"]["smoothing"]["kept"] == true);
     assert_eq!(
         v["/world/robot/refined"]["frame"].as_array().unwrap().len(),
-        7
+        7 * passes
     );
     let chunks = py_json("rrd_contents.py", &[&rrd]);
     let last_points = chunks

@@ -435,10 +435,19 @@ pub fn evaluate(
     };
     Evaluation {
         report: report_name.to_owned(),
-        poses: if report.refinement.as_ref().is_some_and(|r| r.rolled_back) {
-            "odometry (refinement rolled back)".to_owned()
-        } else {
-            poses.to_owned()
+        poses: {
+            let check = report.refinement.as_ref();
+            let smoothed = check
+                .and_then(|r| r.smoothing.as_ref())
+                .is_some_and(|s| s.kept);
+            match (check.is_some_and(|r| r.rolled_back), smoothed) {
+                (true, false) => "odometry (refinement rolled back)".to_owned(),
+                (true, true) => {
+                    "odometry (refinement rolled back), smoothed over the whole replay".to_owned()
+                }
+                (false, true) => format!("{poses}, smoothed over the whole replay"),
+                (false, false) => poses.to_owned(),
+            }
         },
         matches,
         missed: missed.iter().map(|&t| truth[t].name.clone()).collect(),

@@ -45,6 +45,7 @@
 
 mod landmarks;
 mod search;
+pub mod smooth;
 
 pub use landmarks::{
     Consistency, DETECTION_DELTA, Detection, GATE_M, GATE_PX, Landmark, MAX_RAY_CHI2,

@@ -65,6 +65,7 @@ pub(super) fn check_refinement(ctx: &Context<'_>, pass: &Pass) -> RefinementChec
         floor_disagreement: floor,
         detections_only,
         rolled_back,
+        smoothing: None,
         reason: if !rolled_back {
             None
         } else if rays_worse {
@@ -103,6 +104,10 @@ pub struct RefinementCheck {
     pub detections_only: Vec<usize>,
     /// Whether the replay fell back to /odom.
     pub rolled_back: bool,
+    /// What the smoother over the whole replay did after this check (with
+    /// [`FuseOptions::smooth_poses`]); absent from reports written before it existed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub smoothing: Option<super::Smoothing>,
     /// Why, in words.
     pub reason: Option<String>,
 }

@@ -20,6 +20,7 @@ mod fuser;
 mod pass;
 mod prepare;
 mod session_data;
+mod smoothing;
 #[cfg(test)]
 mod tests;
 mod tf;
@@ -33,10 +34,11 @@ pub use pass::CORRECTION_RETENTION;
 pub use session_data::{
     DEFAULT_BOUNDS_MARGIN_M, DEFAULT_MIN_SIDE_M, FrameRef, SessionData, load_session,
 };
+pub use smoothing::Smoothing;
 pub use tf::{MAX_CHAIN, TfError, TfTree};
 
 use check::check_refinement;
-use pass::{Pass, run_pass};
+use pass::{Pass, Prior, run_pass};
 use prepare::{Context, Prepared, floor_params, prepare, step_image};
 
 use thiserror::Error;
@@ -160,6 +162,11 @@ pub struct FuseOptions {
     /// for a larger one); the grid's values do not depend on it.
     #[serde(default)]
     pub grid_storage: GridStorage,
+    /// When refining, solve every pose again over the whole replay after the filter's pass
+    /// ([`crate::fuse::refine::smooth`]) and keep those poses when their grid finds as many
+    /// objects. On by default; reports written before it existed read as off.
+    #[serde(default)]
+    pub smooth_poses: bool,
 }
 
 /// Where an object's location (`centroid_m`) comes from (`fuse --locate`).
@@ -220,6 +227,7 @@ impl Default for FuseOptions {
             fit: SessionFit::ALL,
             max_footprint_voxels: Some(DEFAULT_MAX_FOOTPRINT_VOXELS),
             grid_storage: GridStorage::Auto,
+            smooth_poses: true,
         }
     }
 }
@@ -232,6 +240,7 @@ impl FuseOptions {
         let noisy = self.sigma_v_mps > 0.0 || self.sigma_w_radps > 0.0;
         FuseOptions {
             refine_poses: self.refine_poses && noisy,
+            smooth_poses: self.smooth_poses && self.refine_poses && noisy,
             ..self.clone()
         }
     }
@@ -315,6 +324,11 @@ pub trait Observer {
     }
     /// The refined pass just seen is rolled back; the frames come again, fused at /odom.
     fn on_rollback(&mut self, _data: &SessionData) -> Result<(), ObserverError> {
+        Ok(())
+    }
+    /// The poses of the pass just seen were solved again over the whole replay and kept; the
+    /// frames come again, fused at them.
+    fn on_smoothed(&mut self, _data: &SessionData) -> Result<(), ObserverError> {
         Ok(())
     }
     /// Whether [`Observer::on_frame`] is wanted: building a [`FrameStep`] reads the frame
@@ -412,7 +426,7 @@ pub fn replay(
     }
     let first = run_pass(&ctx, options, observers, None)?;
     let mut refinement = None;
-    let last = if options.refine_poses {
+    let mut last = if options.refine_poses {
         let check = check_refinement(&ctx, &first);
         let roll = check.rolled_back;
         refinement = Some(check);
@@ -425,14 +439,51 @@ pub fn replay(
                 refine_poses: false,
                 ..options.clone()
             };
-            run_pass(&ctx, &plain, observers, Some(&first))?
+            run_pass(&ctx, &plain, observers, Some(Prior::RolledBack(&first)))?
         } else {
             first
         }
     } else {
         first
     };
+    if options.refine_poses && options.smooth_poses {
+        let (kept, report) = smoothing::smooth_pass(&ctx, options, &last)?;
+        if let Some(check) = refinement.as_mut() {
+            check.smoothing = report;
+        }
+        if let Some(smoothed) = kept {
+            last = show_smoothed(&ctx, options, observers, &last, smoothed)?;
+        }
+    }
     Ok(finish(ctx, last, refinement))
+}
+
+/// Shows the kept smoothed pass to the observers that want steps (fused again with them:
+/// the same frames at the same poses give the same grid), or takes it as it is.
+fn show_smoothed(
+    ctx: &Context<'_>,
+    options: &FuseOptions,
+    observers: &mut [&mut dyn Observer],
+    filtered: &Pass,
+    smoothed: Pass,
+) -> Result<Pass, ReplayError> {
+    for o in observers.iter_mut() {
+        o.on_smoothed(&ctx.data)
+            .map_err(|e| ctx.observer_err(None, e))?;
+    }
+    if !observers.iter().any(|o| o.wants_steps()) {
+        return Ok(smoothed);
+    }
+    let plain = FuseOptions {
+        refine_poses: false,
+        ..options.clone()
+    };
+    run_pass(
+        ctx,
+        &plain,
+        observers,
+        Some(Prior::Smoothed(filtered, &smoothed.poses)),
+    )
 }
 
 fn finish(ctx: Context<'_>, pass: Pass, refinement: Option<RefinementCheck>) -> Outcome {

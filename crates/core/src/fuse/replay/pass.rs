@@ -71,13 +71,41 @@ struct Tracker {
     pub(super) last_objects: Vec<Object>,
 }
 
-/// One pass over the frames; `rolled_back` is the refined pass this one replaces at /odom,
-/// whose corrections its frames carry as [`Verdict::RolledBack`] (those it had accepted).
+/// What a pass without localisation takes from a pass before it.
+#[derive(Clone, Copy)]
+pub(super) enum Prior<'a> {
+    /// The refined pass this one replaces at /odom: its frames carry its corrections, those
+    /// it had accepted as [`Verdict::RolledBack`].
+    RolledBack(&'a Pass),
+    /// The pass whose poses the smoother solved again: its frames carry its corrections as
+    /// they were and are fused, unblurred, at `poses` (each was solved against the whole
+    /// replay).
+    Smoothed(&'a Pass, &'a [Iso3]),
+}
+
+impl Prior<'_> {
+    /// Frame `index`'s correction as this pass carries it.
+    fn correction(&self, index: usize) -> Option<Correction> {
+        match self {
+            Prior::RolledBack(r) => r.per_frame.get(index)?.correction.map(|c| match c.outcome {
+                Verdict::Accepted => Correction {
+                    applied: false,
+                    outcome: Verdict::RolledBack,
+                    ..c
+                },
+                _ => c,
+            }),
+            Prior::Smoothed(r, _) => r.per_frame.get(index)?.correction,
+        }
+    }
+}
+
+/// One pass over the frames, localising each when `options` refine and `prior` is `None`.
 pub(super) fn run_pass(
     ctx: &Context<'_>,
     options: &FuseOptions,
     observers: &mut [&mut dyn Observer],
-    rolled_back: Option<&Pass>,
+    prior: Option<Prior<'_>>,
 ) -> Result<Pass, ReplayError> {
     let fuser = Fuser::new(ctx.spec, ctx.prior, options.clone()).map_err(|e| ctx.grid_err(e))?;
     let odometry = || ctx.prepared.iter().map(|p| p.odometry);
@@ -107,54 +135,47 @@ pub(super) fn run_pass(
         last_objects: Vec::new(),
     };
     for index in 0..ctx.prepared.len() {
-        let undone = rolled_back
-            .and_then(|r| r.per_frame.get(index))
-            .and_then(|f| f.correction)
-            .map(|c| match c.outcome {
-                Verdict::Accepted => Correction {
-                    applied: false,
-                    outcome: Verdict::RolledBack,
-                    ..c
-                },
-                _ => c,
-            });
         step(
             ctx,
             options,
             &mut pass,
             &mut tracker,
             index,
-            undone,
+            prior,
             observers,
         )?;
     }
     Ok(pass)
 }
 
-/// Localises (when refining), fuses and observes frame `index`; `undone` is the correction
-/// of a rolled-back pass the frame carries instead (it is fused at /odom).
+/// Localises (when refining), fuses and observes frame `index`; with a `prior` the frame
+/// carries that pass's correction instead, fused at /odom or at the smoothed pose.
 fn step(
     ctx: &Context<'_>,
     options: &FuseOptions,
     pass: &mut Pass,
     tracker: &mut Tracker,
     index: usize,
-    undone: Option<Correction>,
+    prior: Option<Prior<'_>>,
     observers: &mut [&mut dyn Observer],
 ) -> Result<(), ReplayError> {
     let p = &ctx.prepared[index];
     let data = &ctx.data;
     let floor = ready_frame(ctx, options, tracker, index)?;
     let mut floor_unfit = false;
-    let correction = match index.checked_sub(1) {
-        Some(prev) if options.refine_poses => {
+    let correction = match (index.checked_sub(1), prior) {
+        (Some(prev), None) if options.refine_poses => {
             let (c, unfit) = localise_frame(ctx, options, pass, tracker, index, prev, &floor);
             floor_unfit = unfit;
             Some(c)
         }
+        (_, Some(Prior::Smoothed(_, poses))) => {
+            pass.poses.push(poses[index]);
+            prior.and_then(|r| r.correction(index))
+        }
         _ => {
             pass.poses.push(p.odometry);
-            undone
+            prior.and_then(|r| r.correction(index))
         }
     };
     let odom_from_base = pass.poses[index];
@@ -168,7 +189,8 @@ fn step(
     }
     // A frame whose pose was measured (corrected, or found where it was predicted) is not
     // blurred: the measurement replaces the motion model's spread.
-    let localised = options.refine_poses && correction.is_some_and(|c| c.outcome.measured());
+    let localised = matches!(prior, Some(Prior::Smoothed(..)))
+        || (options.refine_poses && correction.is_some_and(|c| c.outcome.measured()));
     // The floor maps take this frame's floor while the grid fuses it and the objects are
     // found: neither side reads what the other writes, and each computes the same whichever
     // thread runs it (the maps' updates are serial and would leave a core idle).
