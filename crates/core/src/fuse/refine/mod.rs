@@ -40,6 +40,10 @@
 //! A correction is applied only when it raises the score by [`MIN_GAIN`]: smaller ones fit
 //! the noise of the detections, and applied they compound into drift.
 //!
+//! This is a filter: each landmark is fixed from the views before the frame. [`smooth`] solves
+//! every pose and landmark again over the whole replay afterwards (the replay decides whether
+//! its poses are kept).
+//!
 //! Invariants: pure functions of their inputs, no I/O; without a landmark seen in the frame
 //! or floor seen before, or without a significant gain, the correction is zero.
 

@@ -6,7 +6,9 @@
 //! commands executed since the previous frame, classify the frame's tiles, integrate them.
 //! With pose refinement each frame is first localised against the landmarks of the frames
 //! before it and the floor they saw ([`crate::fuse::refine`], [`crate::fuse::floor`]); a localised frame
-//! is not blurred.
+//! is not blurred. After a refined pass (and its check) every pose may be solved again over
+//! the whole replay and the frames fused again at those poses (`smoothing.rs`): kept only when
+//! that pass passes its tests, and shown to observers only then.
 //! Observers (Rerun, the report) see each step; they cannot change it.
 //!
 //! Invariants: no clock, no randomness, no unordered iteration: the same session, model and
