@@ -104,8 +104,9 @@ pub struct FuseArgs {
     /// By default a refined replay's poses are solved again together (every frame's
     /// detections of every object under the motion model, frames the floor placed held
     /// there) and kept when their grid finds as many objects (docs/fuser.md, "A smoother
-    /// over the whole replay").
-    #[arg(long, conflicts_with = "no_refine_poses")]
+    /// over the whole replay"). Harmless beside --no-refine-poses (nothing is smoothed then),
+    /// so that one set of extra flags serves every mode of a comparison.
+    #[arg(long)]
     pub no_smooth: bool,
     /// Where an object's location comes from: the centre of its `extent` in the grid, or
     /// the centre triangulated from its `detections`' boxes. Default: the extent for a
