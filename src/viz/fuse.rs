@@ -722,32 +722,28 @@ impl Logger {
 }
 
 impl Logger {
+    /// The frames come again at the smoothed poses, logged over the pass before at the same
+    /// times; the refined track restarts.
+    fn smoothed(&mut self) -> Result<(), VizError> {
+        self.repass(
+            "SMOOTHED: every pose was solved again over the whole replay and kept (its grid finds as many objects); the replay is fused again at those poses",
+            rerun::TextLogLevel::INFO,
+        )
+    }
     /// The frames come again at /odom, logged over the refined pass at the same times; the
     /// refined track restarts with each frame's verdict (rolled-back frames red).
-    fn smoothed(&mut self) -> Result<(), VizError> {
-        self.refined_track.clear();
-        self.refined_colors.clear();
-        self.rec
-            .log(
-                VERDICT_LOG,
-                &rerun::TextLog::new(
-                    "SMOOTHED: every pose was solved again over the whole replay and kept (its grid finds as many objects); the replay is fused again at those poses",
-                )
-                .with_level(rerun::TextLogLevel::INFO),
-            )
-            .map_err(log_err)
-    }
     fn rollback(&mut self) -> Result<(), VizError> {
+        self.repass(
+            "ROLLED BACK: the refined poses explained the frames worse than /odom; the replay is fused again at /odom",
+            rerun::TextLogLevel::ERROR,
+        )
+    }
+    /// A pass shown again: the refined track restarts and the verdict log says why.
+    fn repass(&mut self, why: &str, level: &str) -> Result<(), VizError> {
         self.refined_track.clear();
         self.refined_colors.clear();
         self.rec
-            .log(
-                VERDICT_LOG,
-                &rerun::TextLog::new(
-                    "ROLLED BACK: the refined poses explained the frames worse than /odom; the replay is fused again at /odom",
-                )
-                .with_level(rerun::TextLogLevel::ERROR),
-            )
+            .log(VERDICT_LOG, &rerun::TextLog::new(why).with_level(level))
             .map_err(log_err)
     }
 }

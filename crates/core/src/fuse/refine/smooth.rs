@@ -25,7 +25,7 @@ use nalgebra::{DMatrix, DVector, Matrix3, Matrix3xX, Vector2, Vector3};
 
 use super::landmarks::{Landmark, associate, project};
 use super::{SIGMA_U_PX, SIGMA_V_PX, apply};
-use crate::types::geometry::{Camera, Iso3, yaw_of};
+use crate::types::geometry::{Camera, Iso3, wrap_angle, yaw_of};
 
 /// How closely a frame the floor placed keeps the filter's correction, metres (x and y).
 /// Measured (docs/fuser.md): 0.02 m let the two-chairs tours drift off what their floor says
@@ -96,12 +96,7 @@ pub fn corrected(odometry: &Iso3, e: &Vector3<f64>) -> Iso3 {
 /// The correction (dx, dy, dyaw) that takes `odometry` to `pose`.
 pub fn correction_of(odometry: &Iso3, pose: &Iso3) -> Vector3<f64> {
     let d = pose.translation.vector - odometry.translation.vector;
-    Vector3::new(d.x, d.y, wrap(yaw_of(pose) - yaw_of(odometry)))
-}
-
-fn wrap(a: f64) -> f64 {
-    let t = std::f64::consts::TAU;
-    a - t * (a / t).round()
+    Vector3::new(d.x, d.y, wrap_angle(yaw_of(pose) - yaw_of(odometry)))
 }
 
 /// The correction at frame k carried from frame k-1's along /odom's displacement `dp`
@@ -162,14 +157,14 @@ impl Problem<'_> {
     fn link(&self, k: usize, s: &State, jacobians: bool) -> Term {
         let (from, to) = (&self.frames[k - 1].odometry, &self.frames[k].odometry);
         let dp = (to.translation.vector - from.translation.vector).xy();
-        let dyaw = wrap(yaw_of(to) - yaw_of(from));
+        let dyaw = wrap_angle(yaw_of(to) - yaw_of(from));
         let w = &self.whiten[k - 1];
         // The odometry's scale errors (`cal`: speed and turn, fractions) move the frame by
         // that share of /odom's displacement and turn.
         let res = |a: &Vector3<f64>, b: &Vector3<f64>, cal: &Vector3<f64>| {
             let mut r =
                 b - carried(a, &dp) - Vector3::new(cal.x * dp.x, cal.x * dp.y, cal.y * dyaw);
-            r.z = wrap(r.z);
+            r.z = wrap_angle(r.z);
             w * r
         };
         let (a, b, cal) = (s.corr(k - 1), s.corr(k), s.cal());
@@ -209,7 +204,7 @@ impl Problem<'_> {
 
     fn anchor(&self, k: usize, s: &State) -> Term {
         let d = s.corr(k) - self.frames[k].start;
-        let d = Vector3::new(d.x, d.y, wrap(d.z));
+        let d = Vector3::new(d.x, d.y, wrap_angle(d.z));
         Term {
             r: self.anchor_whiten * d,
             jac: vec![(k, self.anchor_whiten)],

@@ -22,7 +22,7 @@ use crate::fuse::motion::segments_between;
 use crate::fuse::objects::find_objects;
 use crate::fuse::refine::smooth::{SmoothFrame, corrected, correction_of, smooth};
 use crate::fuse::refine::{GATE_CHI2, GATE_SIGMA_SCALE, TotalGate, motion_covariance, propagate};
-use crate::types::geometry::{Iso3, yaw_of};
+use crate::types::geometry::{Iso3, wrap_angle, yaw_of};
 
 use super::pass::{Pass, Prior, run_pass};
 use super::*;
@@ -159,9 +159,7 @@ fn smoothed_poses(
     let (mut max_move_m, mut max_turn) = (0.0f64, 0.0f64);
     for (a, b) in poses.iter().zip(&pass.poses) {
         max_move_m = max_move_m.max((a.translation.vector - b.translation.vector).xy().norm());
-        let turn = (yaw_of(a) - yaw_of(b) + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU)
-            - std::f64::consts::PI;
-        max_turn = max_turn.max(turn.abs());
+        max_turn = max_turn.max(wrap_angle(yaw_of(a) - yaw_of(b)).abs());
     }
     let report = Smoothing {
         kept: false,
