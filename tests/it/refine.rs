@@ -158,6 +158,20 @@ fn refinement_corrects_a_known_turn_bias() {
         json!(false),
         "{objects_smoothing}"
     );
+    // Rejected by the calibration check, which needs no grid: the frames were not fused
+    // again at the smoothed poses, so there is no second count.
+    assert!(
+        objects_smoothing["calibration_disagreement_m"]
+            .as_f64()
+            .unwrap()
+            > 0.05,
+        "{objects_smoothing}"
+    );
+    assert_eq!(
+        objects_smoothing["objects"],
+        json!([1, null]),
+        "{objects_smoothing}"
+    );
     // The report carries each frame's correction; the first frame anchors the frame of
     // reference; the second has no landmark yet (one view places none) but the floor of the
     // first; later ones have both, and most of them move (the bias turns every frame

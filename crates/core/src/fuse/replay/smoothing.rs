@@ -13,6 +13,9 @@
 //! than /odom says: the first solution put a chair 0.33 m off, the second 0.03 m). Otherwise
 //! the filter's pass stands, and the report says why.
 //!
+//! Guards 2 and 3 need no grid and are checked first: when either fails, the frames are not
+//! fused again.
+//!
 //! Invariants: pure in the replay's context and the pass; no pass is shown to observers
 //! before it is kept.
 
@@ -38,8 +41,10 @@ pub struct Smoothing {
     pub floor_placed: usize,
     /// Detections paired with an object in the solution.
     pub observations: usize,
-    /// Objects the pass it would replace found, and the smoothed pass.
-    pub objects: [usize; 2],
+    /// Objects the pass it would replace found, and the smoothed pass; the second is `None`
+    /// when the smoothed poses failed guard 2 or 3, which need no grid, so the frames were not
+    /// fused at them (that pass costs as much as the filter's).
+    pub objects: (usize, Option<usize>),
     /// Half the sum of squared whitened residuals, at the filter's poses and at the
     /// smoother's.
     pub cost: [f64; 2],
@@ -166,7 +171,7 @@ fn smoothed_poses(
         reason: String::new(),
         floor_placed: frames.iter().filter(|f| f.floor_placed).count(),
         observations: s.observations,
-        objects: [0, 0],
+        objects: (0, None),
         cost: s.cost,
         max_move_m,
         max_turn_deg: max_turn.to_degrees(),
@@ -195,30 +200,35 @@ pub(super) fn smooth_pass(
     let Some((poses, mut report)) = smoothed_poses(ctx, options, pass, &landmarks) else {
         return Ok((None, None));
     };
+    let gate = GATE_CHI2 * GATE_SIGMA_SCALE * GATE_SIGMA_SCALE;
+    let in_gate = report.worst_gate_chi2 <= gate;
+    let agreed = report.calibration_disagreement_m <= MAX_CALIBRATION_DISAGREEMENT_M;
+    report.objects = (before, None);
+    if !agreed {
+        report.reason = format!(
+            "not kept: solved with the odometry's speed and turn scale errors among the unknowns ({:+.3}, {:+.3}) an object lies {:.3} m from where it lies without them (over {MAX_CALIBRATION_DISAGREEMENT_M} m): the detections cannot tell drift from a miscalibrated odometry, so the filter's poses stand",
+            report.odometry_scale_error[0],
+            report.odometry_scale_error[1],
+            report.calibration_disagreement_m
+        );
+        return Ok((None, Some(report)));
+    }
+    if !in_gate {
+        report.reason = format!(
+            "not kept: frame {} would lie outside the motion model's gate against /odom (chi-square {:.1} > {gate:.1}), so the filter's poses stand",
+            report.worst_gate_frame, report.worst_gate_chi2
+        );
+        return Ok((None, Some(report)));
+    }
     let plain = FuseOptions {
         refine_poses: false,
         ..options.clone()
     };
     let again = run_pass(ctx, &plain, &mut [], Some(Prior::Smoothed(pass, &poses)))?;
     let found = find_objects(&again.fuser.grid, &options.objects).len();
-    report.objects = [before, found];
-    let gate = GATE_CHI2 * GATE_SIGMA_SCALE * GATE_SIGMA_SCALE;
-    let in_gate = report.worst_gate_chi2 <= gate;
-    let agreed = report.calibration_disagreement_m <= MAX_CALIBRATION_DISAGREEMENT_M;
-    report.kept = found == before && in_gate && agreed;
-    report.reason = if !agreed {
-        format!(
-            "not kept: solved with the odometry's speed and turn scale errors among the unknowns ({:+.3}, {:+.3}) an object lies {:.3} m from where it lies without them (over {MAX_CALIBRATION_DISAGREEMENT_M} m): the detections cannot tell drift from a miscalibrated odometry, so the filter's poses stand",
-            report.odometry_scale_error[0],
-            report.odometry_scale_error[1],
-            report.calibration_disagreement_m
-        )
-    } else if !in_gate {
-        format!(
-            "not kept: frame {} would lie outside the motion model's gate against /odom (chi-square {:.1} > {gate:.1}), so the filter's poses stand",
-            report.worst_gate_frame, report.worst_gate_chi2
-        )
-    } else if report.kept {
+    report.objects = (before, Some(found));
+    report.kept = found == before;
+    report.reason = if report.kept {
         format!(
             "every pose solved again against every frame's detections of the {found} object(s) and the motion model, {} frame(s) held where the floor placed them",
             report.floor_placed
