@@ -27,7 +27,11 @@ named by their stamps, a TUM trajectory of /odom, `--camera`/`--distortion` and 
 scripts/sim_as_capture.py, which needs target/pyenv) with its images resampled to SCALE times
 their size, and imported again with `record import --trajectory` (issue #18's graded path):
 `--via-tum 1` checks that path gives the native importers' table, `--via-tum 0.5` a
-downscaled copy.
+downscaled copy. `--world-scale W` (implies `--via-tum 1` unless given): the trajectory's
+positions multiplied by W, as a structure-from-motion model comes in units of its own; the
+table must not change, but for the voxel size (times W). `--world-rotation RX,RY,RZ` (also
+implies `--via-tum 1`): the world turned by these angles (degrees, about x, y, z), as a model
+whose z is not up comes.
 """
 import random
 import argparse
@@ -51,6 +55,16 @@ OUT = os.path.join(ROOT, "target", "measure-realdata" + (
     + hashlib.sha256(os.path.realpath(DATA).encode()).hexdigest()[:8]
     if "REALDATA_DIR" in os.environ else ""))
 LABELS = os.path.join(ROOT, "recordings", "realdata")
+# --world-scale W: the graded path's trajectory in other units (every position times W);
+# --world-rotation RX,RY,RZ: its world turned (degrees), as a model whose z is not up comes.
+WORLD_SCALE = 1.0
+WORLD_ROTATION = "0,0,0"
+
+
+def world_tag():
+    """The session and report names' suffix for a world in other units or turned."""
+    return ((f"-w{WORLD_SCALE:g}" if WORLD_SCALE != 1.0 else "")
+            + (f"-r{WORLD_ROTATION.replace(',', '_')}" if WORLD_ROTATION != "0,0,0" else ""))
 
 # capture -> (import flags, default object name, objects to model)
 CAPTURES = {
@@ -93,12 +107,13 @@ def labelled_images(capture, obj):
                    if r.split(",")[-1] == obj and int(r.split(",")[3]) > 0})
 
 
-def via_tum(mcap, scale):
+def via_tum(mcap, scale, world_scale=1.0):
     """`mcap` written as a held-out capture comes (scripts/sim_as_capture.py: image files named
     by their stamps, a TUM trajectory, a labels CSV; images scaled by `scale`) and imported
     again with `record import --trajectory`: the graded path. Returns the new session."""
-    d = os.path.splitext(mcap)[0] + f"-tum{scale:g}"
-    run([PY, os.path.join(ROOT, "scripts", "sim_as_capture.py"), mcap, d, "--scale", str(scale)])
+    d = os.path.splitext(mcap)[0] + f"-tum{scale:g}" + world_tag()
+    run([PY, os.path.join(ROOT, "scripts", "sim_as_capture.py"), mcap, d, "--scale", str(scale),
+         "--world-scale", repr(world_scale), "--world-rotation", WORLD_ROTATION])
     read = lambda f: open(os.path.join(d, f)).read().strip()
     lens = ["--distortion", read("distortion.txt")] if os.path.exists(
         os.path.join(d, "distortion.txt")) else []
@@ -120,8 +135,9 @@ def measure(capture, obj, fuse_flags, tag="", train_images=None, tum_scale=None)
     if train_images is not None:
         train = triple_session(capture, obj, train_images, tag)
     if tum_scale is not None:
-        train, tour = via_tum(train, tum_scale), via_tum(tour, tum_scale)
-        tag = f"{tag}-tum{tum_scale:g}" if tag else f"tum{tum_scale:g}"
+        train, tour = via_tum(train, tum_scale, WORLD_SCALE), via_tum(tour, tum_scale, WORLD_SCALE)
+        via = f"tum{tum_scale:g}" + world_tag()
+        tag = f"{tag}-{via}" if tag else via
     name = f"{obj}-{tag}" if tag else obj
     model = os.path.join(d, f"{name}.json")
     report = os.path.join(d, f"{name}.report.json")
@@ -199,10 +215,18 @@ def main():
     ap.add_argument("--train-triples", type=int, default=0)
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--via-tum", type=float, metavar="SCALE")
+    ap.add_argument("--world-scale", type=float, default=1.0, metavar="W")
+    ap.add_argument("--world-rotation", default="0,0,0", metavar="RX,RY,RZ")
     ap.add_argument("fuse_flags", nargs="*")
     a = ap.parse_args()
     if a.via_tum is not None and not 0 < a.via_tum < float("inf"):
         ap.error(f"--via-tum {a.via_tum}: the scale must be a positive number")
+    if not 0 < a.world_scale < float("inf"):
+        ap.error(f"--world-scale {a.world_scale}: the scale must be a positive number")
+    global WORLD_SCALE, WORLD_ROTATION
+    WORLD_SCALE, WORLD_ROTATION = a.world_scale, a.world_rotation
+    if (WORLD_SCALE != 1.0 or WORLD_ROTATION != "0,0,0") and a.via_tum is None:
+        a.via_tum = 1.0
     if not os.path.isdir(DATA):
         print(f"skipped: {DATA} is absent")
         return

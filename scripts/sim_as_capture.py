@@ -12,14 +12,17 @@ camera's mount is chained from /tf_static and /tf at each frame's stamp (a pan-t
 interpolated, as tf2 does, no further than 50 ms past the samples); a radial-tangential lens
 is written for `--distortion`.
 
-Usage: target/pyenv/bin/python scripts/sim_as_capture.py SESSION.mcap OUT_DIR [--scale S]
+Usage: target/pyenv/bin/python scripts/sim_as_capture.py SESSION.mcap OUT_DIR [--scale S] [--world-scale W]
 Writes OUT_DIR/images/<stamp>.png (or .jpg, as recorded), trajectory.txt, labels.csv,
 camera.txt (FX,FY,CX,CY), distortion.txt (K1,K2,P1,P2,K3, for `--distortion`; only for a
 distorted lens) and truth.json (only with /ground_truth/objects). `--scale S`: every image
 resampled to S times its size (bicubic; JPEG quality 92 or PNG, as recorded), and the
 intrinsics and rectangles scaled alike (a pixel's centre stays where it was: cx' = (cx + 0.5)
 sx - 0.5). Needs mcap and mcap-ros2-support (the test environment's target/pyenv has them;
-pillow for `--scale`).
+pillow for `--scale`). `--world-scale W`: every camera position (and true centre) multiplied by
+W, as a structure-from-motion model comes in units of its own (a capture's results must not
+depend on them). `--world-rotation RX,RY,RZ`: the world turned by these angles (degrees, about
+x, then y, then z) before it is scaled, as a model whose z is not up comes.
 """
 import argparse
 import io
@@ -39,6 +42,16 @@ def quat_to_rot(q):
         [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
         [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
     ])
+
+
+def euler_xyz(angles):
+    """The rotation about x by angles[0], then about y, then about z (radians)."""
+    rx, ry, rz = angles
+    cx, sx, cy, sy, cz, sz = np.cos(rx), np.sin(rx), np.cos(ry), np.sin(ry), np.cos(rz), np.sin(rz)
+    x = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
+    y = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
+    z = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
+    return z @ y @ x
 
 
 def rot_to_quat(r):
@@ -135,9 +148,20 @@ def main():
     ap.add_argument("session")
     ap.add_argument("out")
     ap.add_argument("--scale", type=float, default=1.0)
+    ap.add_argument("--world-scale", type=float, default=1.0)
+    ap.add_argument("--world-rotation", default="0,0,0", metavar="RX,RY,RZ")
     a = ap.parse_args()
-    if not 0 < a.scale < float("inf"):
-        ap.error(f"--scale {a.scale}: must be a positive number")
+    try:
+        angles = [np.radians(float(v)) for v in a.world_rotation.split(",")]
+        if len(angles) != 3:
+            raise ValueError
+    except ValueError:
+        ap.error(f"--world-rotation {a.world_rotation}: three angles in degrees, RX,RY,RZ")
+    turned = np.eye(4)
+    turned[:3, :3] = euler_xyz(angles)
+    for flag, v in (("--scale", a.scale), ("--world-scale", a.world_scale)):
+        if not 0 < v < float("inf"):
+            ap.error(f"{flag} {v}: must be a positive number")
     session, out = a.session, a.out
     if not os.path.isfile(session):
         sys.exit(f"{session}: no such session file")
@@ -188,14 +212,16 @@ def main():
         near = int(pose_times[np.argmin(np.abs(pose_times - t))])
         if abs(near - t) > 1_000_000:
             sys.exit(f"{session}: no pose within 1 ms of the frame at {t} ns")
-        world_from_camera = poses[near] @ mount_at(session, static, dynamic, camera_frame, t)
+        world_from_camera = turned @ poses[near] @ mount_at(session, static, dynamic, camera_frame, t)
         q = rot_to_quat(world_from_camera[:3, :3])
-        p = world_from_camera[:3, 3]
+        p = world_from_camera[:3, 3] * a.world_scale
         name = f"{t / 1e9:.6f}.{'png' if 'png' in fmt else 'jpg'}"
         if a.scale != 1.0:
             data, factors = scaled(data, fmt, a.scale)
         open(os.path.join(out, "images", name), "wb").write(data)
-        traj.append(f"{t / 1e9:.6f} {p[0]:.9f} {p[1]:.9f} {p[2]:.9f} {q[0]:.9f} {q[1]:.9f} {q[2]:.9f} {q[3]:.9f}")
+        # 12 significant digits whatever the world's unit (a fixed 9 decimals would round a
+        # position of 0.004 units to 7 digits).
+        traj.append(f"{t / 1e9:.6f} {p[0]:.12g} {p[1]:.12g} {p[2]:.12g} {q[0]:.9f} {q[1]:.9f} {q[2]:.9f} {q[3]:.9f}")
         sx, sy = factors
         for obj, x, y, w, h in labels.get(t, []):
             if x != "" and a.scale != 1.0:
@@ -246,7 +272,7 @@ def main():
         acc[1] += float(np.prod(s)) * c
     centres = {}
     for (n, _), (v, m) in sorted(instances.items(), key=lambda kv: kv[0][1]):
-        centres.setdefault(n, []).append(list(m / v))
+        centres.setdefault(n, []).append(list(turned[:3, :3] @ (m / v) * a.world_scale))
     json.dump(centres, open(os.path.join(out, "truth.json"), "w"))
     print(f"{len(frames)} frames, {len(rows) - 1} label rows -> {out}")
 
