@@ -107,13 +107,14 @@ def labelled_images(capture, obj):
                    if r.split(",")[-1] == obj and int(r.split(",")[3]) > 0})
 
 
-def via_tum(mcap, scale, world_scale=1.0):
+def via_tum(mcap, scale):
     """`mcap` written as a held-out capture comes (scripts/sim_as_capture.py: image files named
     by their stamps, a TUM trajectory, a labels CSV; images scaled by `scale`) and imported
-    again with `record import --trajectory`: the graded path. Returns the new session."""
+    again with `record import --trajectory`: the graded path, in the world WORLD_SCALE and
+    WORLD_ROTATION give. Returns the new session."""
     d = os.path.splitext(mcap)[0] + f"-tum{scale:g}" + world_tag()
     run([PY, os.path.join(ROOT, "scripts", "sim_as_capture.py"), mcap, d, "--scale", str(scale),
-         "--world-scale", repr(world_scale), "--world-rotation", WORLD_ROTATION])
+         "--world-scale", repr(WORLD_SCALE), "--world-rotation", WORLD_ROTATION])
     read = lambda f: open(os.path.join(d, f)).read().strip()
     lens = ["--distortion", read("distortion.txt")] if os.path.exists(
         os.path.join(d, "distortion.txt")) else []
@@ -135,7 +136,7 @@ def measure(capture, obj, fuse_flags, tag="", train_images=None, tum_scale=None)
     if train_images is not None:
         train = triple_session(capture, obj, train_images, tag)
     if tum_scale is not None:
-        train, tour = via_tum(train, tum_scale, WORLD_SCALE), via_tum(tour, tum_scale, WORLD_SCALE)
+        train, tour = via_tum(train, tum_scale), via_tum(tour, tum_scale)
         via = f"tum{tum_scale:g}" + world_tag()
         tag = f"{tag}-{via}" if tag else via
     name = f"{obj}-{tag}" if tag else obj
@@ -223,6 +224,11 @@ def main():
         ap.error(f"--via-tum {a.via_tum}: the scale must be a positive number")
     if not 0 < a.world_scale < float("inf"):
         ap.error(f"--world-scale {a.world_scale}: the scale must be a positive number")
+    try:
+        if len([float(v) for v in a.world_rotation.split(",")]) != 3:
+            raise ValueError
+    except ValueError:
+        ap.error(f"--world-rotation {a.world_rotation}: three angles in degrees, RX,RY,RZ")
     global WORLD_SCALE, WORLD_ROTATION
     WORLD_SCALE, WORLD_ROTATION = a.world_scale, a.world_rotation
     if (WORLD_SCALE != 1.0 or WORLD_ROTATION != "0,0,0") and a.via_tum is None:

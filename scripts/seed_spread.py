@@ -10,7 +10,7 @@ Usage: scripts/seed_spread.py [--sets small,approach,foreign,shelf,shipped] [--s
            [--config "NAME=TRAIN FLAGS"]...      (from the repository root; stdlib only)
 Each --config is a name and the `objloc train` flags it adds (default: one config, "tree",
 with none: today's defaults); its runs are cached as target/seed-spread/NAME-seedS.json and
-run again only with --again. Example, a forest of 16 trees against the one tree:
+run again with --again or when target/release/objloc (OBJLOC_BIN) is newer than the cache. Example, a forest of 16 trees against the one tree:
   scripts/seed_spread.py --config "tree=" --config "forest16=--trees 16"
 """
 import argparse
@@ -21,6 +21,7 @@ import sys
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 OUT = os.path.join(ROOT, "target", "seed-spread")
+BIN = os.environ.get("OBJLOC_BIN") or os.path.join(ROOT, "target", "release", "objloc")
 TARGET_M = 0.12
 
 
@@ -31,7 +32,9 @@ def right(res):
 def run(name, flags, seed, sets, again):
     """One measure_sessions.py run; returns its JSON results."""
     out = os.path.join(OUT, "%s-seed%d.json" % (name, seed))
-    if again or not os.path.exists(out):
+    stale = not os.path.exists(out) or (
+        os.path.exists(BIN) and os.path.getmtime(out) < os.path.getmtime(BIN))
+    if again or stale:
         env = dict(os.environ, TRAIN_FLAGS=" ".join(flags + ["--seed", str(seed)]))
         r = subprocess.run([sys.executable, os.path.join(ROOT, "scripts", "measure_sessions.py"),
                             "--sets", sets, "--modes", "default", "--json", out],
@@ -48,7 +51,10 @@ def main():
     ap.add_argument("--config", action="append", metavar="NAME=FLAGS")
     ap.add_argument("--again", action="store_true", help="measure again what is cached")
     a = ap.parse_args()
-    seeds = [int(s) for s in a.seeds.split(",")]
+    try:
+        seeds = [int(s) for s in a.seeds.split(",")]
+    except ValueError:
+        ap.error("--seeds %r: whole numbers joined by ','" % a.seeds)
     configs = []
     for c in a.config or ["tree="]:
         name, _, flags = c.partition("=")

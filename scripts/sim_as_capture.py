@@ -13,6 +13,7 @@ interpolated, as tf2 does, no further than 50 ms past the samples); a radial-tan
 is written for `--distortion`.
 
 Usage: target/pyenv/bin/python scripts/sim_as_capture.py SESSION.mcap OUT_DIR [--scale S] [--world-scale W]
+       [--world-rotation RX,RY,RZ]
 Writes OUT_DIR/images/<stamp>.png (or .jpg, as recorded), trajectory.txt, labels.csv,
 camera.txt (FX,FY,CX,CY), distortion.txt (K1,K2,P1,P2,K3, for `--distortion`; only for a
 distorted lens) and truth.json (only with /ground_truth/objects). `--scale S`: every image
