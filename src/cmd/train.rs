@@ -63,6 +63,15 @@ pub struct Args {
     /// (a posed capture); printed.
     #[arg(long)]
     trees: Option<u32>,
+    /// Share of the training tiles each tree of a forest grows on, in (0, 1] (default 0.5;
+    /// 1: every tree sees every tile and only the features drawn differ). Needs a forest.
+    #[arg(long = "tree-sample-fraction", value_name = "FRACTION")]
+    tree_sample_fraction: Option<f64>,
+    /// Features each node of a forest's trees chooses its split among (default: the square
+    /// root of the feature count; more than there are: all, so the trees differ only by
+    /// their tiles). Needs a forest.
+    #[arg(long = "split-features", value_name = "K")]
+    split_features: Option<usize>,
     /// Use only labels naming this object (default: every label).
     #[arg(long)]
     object: Option<String>,
@@ -139,7 +148,7 @@ fn config(args: &Args) -> anyhow::Result<TrainConfig> {
             base_mix: args.base_mix,
             ..TreeParams::default()
         },
-        forest: ForestParams::with_trees(args.trees.unwrap_or(1)),
+        forest: forest_params(args, args.trees.unwrap_or(1)),
         region: (!args.no_region).then_some(RegionConfig {
             features: args.region_features,
             context_tiles: args.region_context_tiles,
@@ -190,7 +199,44 @@ fn config(args: &Args) -> anyhow::Result<TrainConfig> {
     usage_check((0.0..1.0).contains(&cfg.tree.base_mix), || {
         format!("--base-mix {} must be in [0, 1)", cfg.tree.base_mix)
     })?;
+    if let Some(f) = args.tree_sample_fraction {
+        usage_check(f > 0.0 && f <= 1.0, || {
+            format!("--tree-sample-fraction {f} must be in (0, 1]")
+        })?;
+    }
+    usage_check(args.split_features != Some(0), || {
+        "--split-features 0: a node needs at least one feature to split on".to_owned()
+    })?;
     Ok(cfg)
+}
+
+/// `trees` trees, randomised as `--tree-sample-fraction` and `--split-features` ask.
+fn forest_params(args: &Args, trees: u32) -> ForestParams {
+    let mut forest = ForestParams::with_trees(trees);
+    if forest.trees > 1 {
+        if let Some(f) = args.tree_sample_fraction {
+            forest.sample_fraction = f;
+        }
+        if let Some(k) = args.split_features {
+            forest.split_features = Some(k);
+        }
+    }
+    forest
+}
+
+/// A forest's options given to a single tree would be silently ignored: refused instead,
+/// once the sessions have chosen the tree count.
+fn check_forest_options(args: &Args, cfg: &TrainConfig) -> anyhow::Result<()> {
+    let given = [
+        ("--tree-sample-fraction", args.tree_sample_fraction.is_some()),
+        ("--split-features", args.split_features.is_some()),
+    ];
+    for (flag, is_given) in given {
+        usage_check(!is_given || cfg.forest.trees > 1, || {
+            format!("{flag} randomises a forest's trees, and this model is one tree: add --trees N (N >= 2)")
+        })?;
+    }
+    Ok(())
 }
 
 /// The options that depend on the tile side, checked before the tile head is trained.
@@ -290,7 +336,7 @@ fn fit_to_sessions(
     let d = TileHeadDefaults::for_sessions(sessions, choice);
     (cfg.features, cfg.augment) = (d.features, d.augment);
     (cfg.tile_px, cfg.train_stride_px) = (d.tile_px, d.train_stride_px);
-    cfg.forest = ForestParams::with_trees(d.trees);
+    cfg.forest = forest_params(args, d.trees);
     let mut chosen = Vec::new();
     if choice.features.is_none() {
         chosen.push(format!("features {}", d.features));
@@ -503,6 +549,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let sessions = load_sessions(&args, &topics)?;
     let chosen = fit_to_sessions(&args, &mut cfg, &sessions);
     check_tiles(&cfg)?;
+    check_forest_options(&args, &cfg)?;
     let t_load = t0.elapsed();
     stage.set_message("train: tile features");
     let named = || {
