@@ -228,12 +228,17 @@ fn forest_params(args: &Args, trees: u32) -> ForestParams {
 /// once the sessions have chosen the tree count.
 fn check_forest_options(args: &Args, cfg: &TrainConfig) -> anyhow::Result<()> {
     let given = [
-        ("--tree-sample-fraction", args.tree_sample_fraction.is_some()),
+        (
+            "--tree-sample-fraction",
+            args.tree_sample_fraction.is_some(),
+        ),
         ("--split-features", args.split_features.is_some()),
     ];
     for (flag, is_given) in given {
         usage_check(!is_given || cfg.forest.trees > 1, || {
-            format!("{flag} randomises a forest's trees, and this model is one tree: add --trees N (N >= 2)")
+            format!(
+                "{flag} randomises a forest's trees, and this model is one tree: add --trees N (N >= 2)"
+            )
         })?;
     }
     Ok(())

@@ -384,6 +384,16 @@ fn bad_inputs_fail_with_one_line_and_no_output() {
         ),
         ("--base-mix", "1.5", "--base-mix 1.5 must be in [0, 1)"),
         ("--trees", "0", "--trees 0 must be 1 to 256"),
+        (
+            "--tree-sample-fraction",
+            "1.5",
+            "--tree-sample-fraction 1.5 must be in (0, 1]",
+        ),
+        (
+            "--split-features",
+            "0",
+            "--split-features 0: a node needs at least one feature to split on",
+        ),
         ("--tile", "0", "--tile 0 px is outside 2..=128 px"),
         (
             "--train-stride",
@@ -414,6 +424,28 @@ fn bad_inputs_fail_with_one_line_and_no_output() {
         assert_eq!(usage_error(&out), format!("error: {expect}"));
         assert!(!model.exists());
     }
+
+    // A forest's option on a single tree would change nothing: refused once the sessions
+    // are read (a capture's default is a forest), with nothing written.
+    let one_tree = train_session(dir.path());
+    let out = objloc(
+        &[
+            "train",
+            p(&one_tree),
+            "-o",
+            p(&model),
+            "--trees",
+            "1",
+            "--split-features",
+            "8",
+        ],
+        &[],
+    );
+    assert_eq!(
+        usage_error(&out),
+        "error: --split-features randomises a forest's trees, and this model is one tree: add --trees N (N >= 2)"
+    );
+    assert!(!model.exists());
 
     // A session whose frames carry no label at all.
     let unlabelled = dir.path().join("unlabelled.mcap");

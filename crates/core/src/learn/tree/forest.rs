@@ -217,7 +217,9 @@ mod tests {
     }
 
     /// The forest's path with every example and every feature at every node grows the
-    /// paper's tree: the draws are all that path changes.
+    /// paper's tree: the draws are all that path changes. (`train --tree-sample-fraction 1
+    /// --split-features 1000`: the largest fraction it takes keeps every example, and more
+    /// features than there are is all of them.)
     #[test]
     fn a_draw_of_everything_grows_the_papers_tree() {
         let ex = examples(900);
@@ -225,9 +227,10 @@ mod tests {
         let paper = fit(&ex, &params).unwrap().0;
         let everything = ForestParams {
             trees: 2,
-            sample_fraction: 2.0,
-            split_features: Some(4),
+            sample_fraction: 1.0,
+            split_features: Some(1000),
         };
+        assert_eq!(everything.split_features_of(4), 4);
         let r = Randomise::new(5, 1, &everything, 4);
         assert!((0..900).all(|i| r.keeps(i)));
         let all = fit_randomised(&ex, &params, Some(&r)).unwrap().0;
