@@ -166,6 +166,10 @@ struct Logger {
     /// The first frame's position: it anchors the refined trajectory, which starts there
     /// although that frame carries no correction.
     first_position: Option<[f32; 3]>,
+    /// Where a pass shown again logs its plots, under each plot's own entity ("" for the
+    /// replay's first pass): two passes at the same times on one series would draw a zigzag,
+    /// as series of their own they compare frame by frame.
+    pass_suffix: &'static str,
 }
 
 impl FuseViz {
@@ -471,11 +475,7 @@ impl Logger {
         self.pyramids(step)?;
         if let Some(s) = &m.snapshot {
             self.grid(&s.grid, &s.spec)?;
-            scalar(
-                &self.rec,
-                "plots/mean_entropy_bits",
-                s.grid.mean_entropy_bits,
-            )?;
+            self.plot("plots/mean_entropy_bits", s.grid.mean_entropy_bits)?;
         }
         self.objects(step, m.centroid_error_m)
     }
@@ -589,14 +589,13 @@ impl Logger {
             )
             .map_err(log_err)?;
             let o = step.odometry.translation.vector;
-            scalar(&self.rec, "plots/correction_m", (t - o).xy().norm())?;
-            scalar(
-                &self.rec,
+            self.plot("plots/correction_m", (t - o).xy().norm())?;
+            self.plot(
                 "plots/correction_deg",
                 yaw_of(&(step.odometry.inverse() * step.odom_from_base)).to_degrees(),
             )?;
-            scalar(&self.rec, "counts/landmarks", c.anchors as f64)?;
-            scalar(&self.rec, "counts/floor_cells", c.floor_cells as f64)?;
+            self.plot("counts/landmarks", c.anchors as f64)?;
+            self.plot("counts/floor_cells", c.floor_cells as f64)?;
         }
         Ok(())
     }
@@ -711,11 +710,11 @@ impl Logger {
         )
         .map_err(log_err)?;
 
-        scalar(rec, "plots/max_posterior", step.max_probability)?;
-        scalar(rec, "counts/cells_updated", step.cells_updated as f64)?;
-        scalar(rec, "counts/objects", objects.len() as f64)?;
+        self.plot("plots/max_posterior", step.max_probability)?;
+        self.plot("counts/cells_updated", step.cells_updated as f64)?;
+        self.plot("counts/objects", objects.len() as f64)?;
         if let Some(e) = centroid_error_m {
-            scalar(rec, "plots/centroid_error_m", e)?;
+            self.plot("plots/centroid_error_m", e)?;
         }
         Ok(())
     }
@@ -725,6 +724,7 @@ impl Logger {
     /// The frames come again at the smoothed poses, logged over the pass before at the same
     /// times; the refined track restarts.
     fn smoothed(&mut self) -> Result<(), VizError> {
+        self.pass_suffix = "/smoothed";
         self.repass(
             "SMOOTHED: every pose was solved again over the whole replay and kept (its grid finds as many objects); the replay is fused again at those poses",
             rerun::TextLogLevel::INFO,
@@ -733,11 +733,17 @@ impl Logger {
     /// The frames come again at /odom, logged over the refined pass at the same times; the
     /// refined track restarts with each frame's verdict (rolled-back frames red).
     fn rollback(&mut self) -> Result<(), VizError> {
+        self.pass_suffix = "/rolled_back";
         self.repass(
             "ROLLED BACK: the refined poses explained the frames worse than /odom; the replay is fused again at /odom",
             rerun::TextLogLevel::ERROR,
         )
     }
+    /// A plot's value for the frame, on the series of the pass being shown.
+    fn plot(&self, path: &str, v: f64) -> Result<(), VizError> {
+        scalar(&self.rec, &format!("{path}{}", self.pass_suffix), v)
+    }
+
     /// A pass shown again: the refined track restarts and the verdict log says why.
     fn repass(&mut self, why: &str, level: &str) -> Result<(), VizError> {
         self.refined_track.clear();
@@ -758,6 +764,7 @@ impl Observer for FuseViz {
             refined_track: Vec::new(),
             refined_colors: Vec::new(),
             first_position: None,
+            pass_suffix: "",
         };
         let (queue, inbox) = std::sync::mpsc::sync_channel::<Message>(QUEUED_FRAMES);
         let handle = std::thread::Builder::new()

@@ -175,7 +175,8 @@ fn fuse_recording_verifies_holds_the_documented_entities_and_replays_equal() {
         .collect();
     assert_eq!(log_times, want);
     // A kept smoothing shows the frames again, fused at the smoothed poses (the viewer's
-    // latest-at shows that pass): each per-frame entity holds every frame once per pass.
+    // latest-at shows that pass): each per-frame entity of the world and the camera holds
+    // every frame once per pass.
     let passes = 1 + usize::from(report["refinement"]["smoothing"]["kept"] == true);
     // (Rows come sorted by time.)
     let want_rows: Vec<u64> = want
@@ -248,9 +249,34 @@ fn fuse_recording_verifies_holds_the_documented_entities_and_replays_equal() {
         ("/projections/x", &["DepthImage:buffer"]),
         ("/projections/y", &["DepthImage:buffer"]),
         ("/projections/z", &["DepthImage:buffer"]),
-        ("/plots/max_posterior", &["Scalars:scalars"]),
-        ("/plots/mean_entropy_bits", &["Scalars:scalars"]),
     ];
+    // Plots hold each pass as a series of its own: the first pass's under the plot, a pass
+    // shown again under the plot's `smoothed` child (two passes on one series would draw a
+    // zigzag between their values at each frame).
+    for plot in ["/plots/max_posterior", "/plots/mean_entropy_bits"] {
+        let smoothed = format!("{plot}/smoothed");
+        let series =
+            std::iter::once(plot.to_owned()).chain((passes == 2).then_some(smoothed.clone()));
+        for entity in series {
+            let cols = columns(&v, &entity);
+            assert!(
+                cols.iter().any(|x| x == "Scalars:scalars"),
+                "{entity}: {cols:?}"
+            );
+            assert_eq!(u64s(&v[&entity]["log_time"]), want, "{entity} log_time");
+            assert_eq!(
+                u64s(&v[&entity]["frame"]),
+                (0..8).collect::<Vec<u64>>(),
+                "{entity} frame"
+            );
+        }
+        if passes == 1 {
+            assert!(
+                v.get(&smoothed).is_none(),
+                "{smoothed} without a kept smoothing"
+            );
+        }
+    }
     for (entity, want_cols) in per_frame {
         let cols = columns(&v, entity);
         for c in *want_cols {
@@ -263,8 +289,9 @@ fn fuse_recording_verifies_holds_the_documented_entities_and_replays_equal() {
         assert_eq!(u64s(&e["log_time"]), want_rows, "{entity} log_time");
         assert_eq!(u64s(&e["frame"]), want_frames, "{entity} frame");
     }
-    // The centroid error is plotted only for frames with an object (unit-tested in
-    // src/viz/fuse.rs); whatever frames it has are fused frames.
+    // The centroid error is plotted only for frames with an object and ground truth
+    // (`out::view::centroid_error_m` is None otherwise); whatever frames it has are fused
+    // frames.
     if let Some(e) = v.get("/plots/centroid_error_m") {
         assert!(u64s(&e["frame"]).iter().all(|f| *f < 8), "{e}");
     }
@@ -533,6 +560,14 @@ fn refined_replay_streams_the_refined_trajectory_beside_the_robot_in_world_coord
         v["/world/robot/refined"]["frame"].as_array().unwrap().len(),
         7 * passes
     );
+    // The plots of a pass shown again are series of their own, so the filter's and the
+    // smoother's corrections are compared frame by frame (not drawn over each other).
+    assert_eq!(passes, 2, "this tour's smoothing is kept");
+    let rows = |e: &str| v.get(e).map_or(0, |x| x["frame"].as_array().unwrap().len());
+    assert_eq!(rows("/plots/correction_m"), 7);
+    assert_eq!(rows("/plots/correction_m/smoothed"), 7);
+    assert_eq!(rows("/plots/max_posterior"), 8);
+    assert_eq!(rows("/plots/max_posterior/smoothed"), 8);
     let chunks = py_json("rrd_contents.py", &[&rrd]);
     let last_points = chunks
         .as_array()
