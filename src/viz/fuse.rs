@@ -308,10 +308,6 @@ fn projection(
     rec.log(path, &img).map_err(log_err)
 }
 
-fn scalar(rec: &RecordingStream, path: &str, v: f64) -> Result<(), VizError> {
-    rec.log(path, &rerun::Scalars::single(v)).map_err(log_err)
-}
-
 /// Declares `entity`'s data to be in the `world` entity's frame (statically).
 fn in_world_frame(rec: &RecordingStream, entity: &str) -> Result<(), VizError> {
     rec.log_static(entity, &rerun::CoordinateFrame::new(WORLD_FRAME))
@@ -722,7 +718,7 @@ impl Logger {
 
 impl Logger {
     /// The frames come again at the smoothed poses, logged over the pass before at the same
-    /// times; the refined track restarts.
+    /// times (their plots on series of their own); the refined track restarts.
     fn smoothed(&mut self) -> Result<(), VizError> {
         self.pass_suffix = "/smoothed";
         self.repass(
@@ -730,8 +726,9 @@ impl Logger {
             rerun::TextLogLevel::INFO,
         )
     }
-    /// The frames come again at /odom, logged over the refined pass at the same times; the
-    /// refined track restarts with each frame's verdict (rolled-back frames red).
+    /// The frames come again at /odom, logged over the refined pass at the same times (their
+    /// plots on series of their own); the refined track restarts with each frame's verdict
+    /// (rolled-back frames red).
     fn rollback(&mut self) -> Result<(), VizError> {
         self.pass_suffix = "/rolled_back";
         self.repass(
@@ -741,7 +738,12 @@ impl Logger {
     }
     /// A plot's value for the frame, on the series of the pass being shown.
     fn plot(&self, path: &str, v: f64) -> Result<(), VizError> {
-        scalar(&self.rec, &format!("{path}{}", self.pass_suffix), v)
+        self.rec
+            .log(
+                format!("{path}{}", self.pass_suffix),
+                &rerun::Scalars::single(v),
+            )
+            .map_err(log_err)
     }
 
     /// A pass shown again: the refined track restarts and the verdict log says why.
