@@ -36,21 +36,25 @@ pub(super) fn check_refinement(ctx: &Context<'_>, pass: &Pass) -> RefinementChec
         .floor_check
         .as_ref()
         .map(|c| [c.fused.disagreement(), c.odometry.disagreement()]);
-    let verdict = rollback_verdict(&refined, &odom, floor);
+    let applied = pass
+        .per_frame
+        .iter()
+        .filter(|f| f.correction.is_some_and(|c| c.applied))
+        .count();
+    let alone: Vec<usize> = pass
+        .per_frame
+        .iter()
+        .filter(|f| {
+            f.correction
+                .is_some_and(|c| c.applied && c.floor_cells == 0)
+        })
+        .map(|f| f.index)
+        .collect();
+    let rays_fitted = 2 * alone.len() > applied;
+    let verdict = rollback_verdict(&refined, &odom, floor, rays_fitted);
     let rolled_back = pass.poses != odometry && verdict.is_some();
     // A rolled-back replay is fused at /odom: none of its corrections stands.
-    let detections_only = if rolled_back {
-        Vec::new()
-    } else {
-        pass.per_frame
-            .iter()
-            .filter(|f| {
-                f.correction
-                    .is_some_and(|c| c.applied && c.floor_cells == 0)
-            })
-            .map(|f| f.index)
-            .collect()
-    };
+    let detections_only = if rolled_back { Vec::new() } else { alone };
     RefinementCheck {
         refined_rays: refined,
         odometry_rays: odom,
@@ -77,13 +81,21 @@ pub const ROLLBACK_TOLERANCE: f64 = 0.05;
 /// (the product of the two ratios) beyond it: two small signals that agree are one large
 /// one (a mug tour at 5 %/3 % whose rays were 4.0 % and floor 4.4 % worse, each within the
 /// tolerance, had the refined trajectory 0.36 m off against /odom's 0.13 m; docs/fuser.md).
+///
+/// `rays_fitted`: more than half the applied corrections rested on the detections alone (no
+/// floor cell). Their poses were fitted to the very rays compared here, so rays that meet
+/// better at them are no evidence against a floor that disagrees (which none of them used):
+/// the rays then cannot overrule the floor (a mug tour at 5 %/3 % whose six corrections all
+/// turned the robot on one mug's rays: rays 0.52 against 7.65, floor 6.7 % worse, the
+/// trajectory 0.395 m off against /odom's 0.144 m; docs/fuser.md).
 pub(super) fn rollback_verdict(
     refined: &Consistency,
     odom: &Consistency,
     floor: Option<[f64; 2]>,
+    rays_fitted: bool,
 ) -> Option<String> {
     let rays_worse = refined.worse_than(odom);
-    let rays_better = odom.worse_than(refined);
+    let rays_better = !rays_fitted && odom.worse_than(refined);
     let rays = [refined.mean_chi2, odom.mean_chi2];
     let floor_worse = floor.is_some_and(|[r, o]| r > o * (1.0 + ROLLBACK_TOLERANCE));
     let floor_better = floor.is_some_and(|[r, o]| o > r * (1.0 + ROLLBACK_TOLERANCE));
@@ -96,8 +108,17 @@ pub(super) fn rollback_verdict(
             rays[0], rays[1]
         ))
     } else if floor_worse && !rays_better {
+        // Said when the rays would otherwise have kept the replay.
+        let overruled = if rays_fitted && odom.worse_than(refined) {
+            format!(
+                "; the rays meet better there ({:.2} against {:.2}), but most corrections were fitted to them",
+                rays[0], rays[1]
+            )
+        } else {
+            String::new()
+        };
         floor.map(|[r, o]| {
-            format!("the floor seen at the refined poses disagrees with itself more than at /odom ({r:.3} against {o:.3})")
+            format!("the floor seen at the refined poses disagrees with itself more than at /odom ({r:.3} against {o:.3}){overruled}")
         })
     } else if both_worse {
         floor.map(|[r, o]| {
@@ -157,7 +178,7 @@ mod tests {
     /// 5 % tolerance, 1.0395 x 1.0440 = 1.085 together.
     #[test]
     fn two_small_agreeing_signals_roll_back() {
-        let why = rollback_verdict(&rays(9.20), &rays(8.85), Some([5.977, 5.725]));
+        let why = rollback_verdict(&rays(9.20), &rays(8.85), Some([5.977, 5.725]), false);
         let why = why.expect("both worse, together 8.5 %");
         assert!(why.contains("both the detections and the floor"), "{why}");
         assert!(
@@ -169,8 +190,9 @@ mod tests {
     /// Each rule alone, and what keeps a replay: the values are the ratios' edges.
     #[test]
     fn the_rules_at_their_edges() {
-        let v =
-            |r: f64, o: f64, floor: Option<[f64; 2]>| rollback_verdict(&rays(r), &rays(o), floor);
+        let v = |r: f64, o: f64, floor: Option<[f64; 2]>| {
+            rollback_verdict(&rays(r), &rays(o), floor, false)
+        };
         // The seed-5 tour of the same scene: +1.3 % and +0.4 %, 1.017 together: kept.
         assert_eq!(v(9.83, 9.70, Some([6.562, 6.534])), None);
         // Both worse, together just under 5 % (1.02 x 1.029 = 1.0496) and just over (1.0506).
@@ -190,6 +212,22 @@ mod tests {
                 .contains("floor seen")
         );
         assert_eq!(v(1.0, 1.1, Some([1.06, 1.0])), None);
+        // Rays that most corrections were fitted to cannot overrule the floor (the mug tour
+        // of seed 4: rays 0.52 against 7.65, floor 6.676 against 6.254), but still roll back
+        // on their own when worse.
+        let w = |r: f64, o: f64, floor: Option<[f64; 2]>| {
+            rollback_verdict(&rays(r), &rays(o), floor, true)
+        };
+        assert_eq!(v(0.52, 7.65, Some([6.676, 6.254])), None);
+        let why = w(0.52, 7.65, Some([6.676, 6.254])).expect("the floor decides");
+        assert!(
+            why.contains("6.676 against 6.254") && why.contains("fitted to them"),
+            "{why}"
+        );
+        assert!(!w(1.0, 1.0, Some([1.06, 1.0])).unwrap().contains("fitted"));
+        assert!(w(1.1, 1.0, None).is_some());
+        assert_eq!(w(0.5, 1.0, Some([1.0, 1.0])), None);
+        assert_eq!(w(0.5, 1.0, None), None);
         // Without the floor term only the rays decide; equal rays keep the replay.
         assert_eq!(v(2.0, 2.0, None), None);
     }
