@@ -494,6 +494,12 @@ fn rays_the_corrections_were_fitted_to_cannot_overrule_the_floor() {
         alone >= 4,
         "the corrections are marked rolled back: {frames:?}"
     );
+    // The smoother, started from /odom after the rollback, finds a second object and is not
+    // kept: what stands is /odom's poses, and stdout says so, not "the filter's".
+    assert!(
+        stdout.contains("of /odom's poses, so they stand"),
+        "{stdout}"
+    );
 }
 
 /// Where the foreign sessions are (`../shared/foreign/sessions` beside the checkout).

@@ -449,7 +449,8 @@ pub fn replay(
         first
     };
     if options.refine_poses && options.smooth_poses {
-        let (kept, report) = smoothing::smooth_pass(&ctx, options, &last)?;
+        let rolled_back = refinement.as_ref().is_some_and(|c| c.rolled_back);
+        let (kept, report) = smoothing::smooth_pass(&ctx, options, &last, rolled_back)?;
         if let Some(check) = refinement.as_mut() {
             check.smoothing = report;
         }

@@ -187,12 +187,19 @@ fn smoothed_poses(
 
 /// Solves the poses of `pass` again over the whole replay and fuses the frames at them
 /// (shown to no observer); returns that pass when it is kept, and the report either way
-/// (`None` when there was nothing to smooth).
+/// (`None` when there was nothing to smooth). `rolled_back`: `pass` is the replay fused again
+/// at /odom after the check, so a refusal leaves /odom's poses, not the filter's.
 pub(super) fn smooth_pass(
     ctx: &Context<'_>,
     options: &FuseOptions,
     pass: &Pass,
+    rolled_back: bool,
 ) -> Result<(Option<Pass>, Option<Smoothing>), ReplayError> {
+    let whose = if rolled_back {
+        "/odom's"
+    } else {
+        "the filter's"
+    };
     // The landmarks are the objects the filter localised against; the count is the final
     // rule's (with its weaker instances), what the replay reports.
     let landmarks = find_objects(&pass.fuser.grid, &options.objects.per_frame());
@@ -206,7 +213,7 @@ pub(super) fn smooth_pass(
     report.objects = (before, None);
     if !agreed {
         report.reason = format!(
-            "not kept: solved with the odometry's speed and turn scale errors among the unknowns ({:+.3}, {:+.3}) an object lies {:.3} m from where it lies without them (over {MAX_CALIBRATION_DISAGREEMENT_M} m): the detections cannot tell drift from a miscalibrated odometry, so the filter's poses stand",
+            "not kept: solved with the odometry's speed and turn scale errors among the unknowns ({:+.3}, {:+.3}) an object lies {:.3} m from where it lies without them (over {MAX_CALIBRATION_DISAGREEMENT_M} m): the detections cannot tell drift from a miscalibrated odometry, so {whose} poses stand",
             report.odometry_scale_error[0],
             report.odometry_scale_error[1],
             report.calibration_disagreement_m
@@ -215,7 +222,7 @@ pub(super) fn smooth_pass(
     }
     if !in_gate {
         report.reason = format!(
-            "not kept: frame {} would lie outside the motion model's gate against /odom (chi-square {:.1} > {gate:.1}), so the filter's poses stand",
+            "not kept: frame {} would lie outside the motion model's gate against /odom (chi-square {:.1} > {gate:.1}), so {whose} poses stand",
             report.worst_gate_frame, report.worst_gate_chi2
         );
         return Ok((None, Some(report)));
@@ -235,7 +242,7 @@ pub(super) fn smooth_pass(
         )
     } else {
         format!(
-            "not kept: fused at the smoothed poses the grid holds {found} object(s) against the {before} of the filter's poses, so the filter's poses stand"
+            "not kept: fused at the smoothed poses the grid holds {found} object(s) against the {before} of {whose} poses, so they stand"
         )
     };
     Ok((report.kept.then_some(again), Some(report)))
