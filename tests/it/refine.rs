@@ -332,37 +332,10 @@ fn a_repeating_floor_does_not_move_exact_odometry() {
 /// "A smoother over the whole replay"), and `--no-smooth` keeps the filter's result.
 #[test]
 fn the_smoother_places_the_bin_the_filter_loses_on_a_small_circle() {
-    let dir = tempfile::tempdir().unwrap();
-    let scene = repo_dir().join("scripts/heldout/bin-on-shelf.json");
-    let train_session = dir.path().join("train.mcap");
-    crate::common::record_scene_file(&scene, "train", "11", &train_session, &[]);
-    let tour = dir.path().join("tour.mcap");
-    crate::common::record_scene_file(&scene, "tour", "21", &tour, &["--speed-noise", "0.05,0.03"]);
-    let model = dir.path().join("bin.json");
-    ok(&objloc(
-        &["train", p(&train_session), "-o", p(&model), "--no-rerun"],
-        &[],
-    ));
-    let fuse = |extra: &[&str]| -> (Value, Value, String) {
+    let (dir, tour, model) = trained_tour("bin-on-shelf", "21", &[]);
+    let fuse = |extra: &[&str]| {
         let report = dir.path().join(format!("r{}.json", extra.len()));
-        let mut args = vec![
-            "fuse",
-            p(&tour),
-            "--model",
-            p(&model),
-            "--report",
-            p(&report),
-            "--no-rerun",
-            "--bounds=-3.5,-3.5,0,3.5,3.5,2.5",
-        ];
-        args.extend_from_slice(extra);
-        let stdout = ok(&objloc(&args, &[]));
-        let out = ok(&objloc(
-            &["eval", p(&tour), "--report", p(&report), "--json"],
-            &[],
-        ));
-        let evals: Value = serde_json::from_str(&out).expect("eval JSON");
-        (json(&report), evals[0].clone(), stdout)
+        fuse_in_room(&tour, &model, &report, extra)
     };
     let (report, eval, stdout) = fuse(&[]);
     let sm = &report["refinement"]["smoothing"];
@@ -390,41 +363,59 @@ fn the_smoother_places_the_bin_the_filter_loses_on_a_small_circle() {
     );
 }
 
-/// Records the two-mugs approach scene's training session and its 5 %/3 % tour of `seed`,
-/// trains, fuses with default options and evaluates: (report, eval, stdout).
-fn mugs_approach_5_3(seed: &str) -> (Value, Value, String) {
+/// Records a held-out scene's training session (seed 11) and its 5 %/3 % tour of `seed`
+/// (with `extra` recording flags) in a fresh directory, and trains on the first: (the
+/// directory, the tour, the model).
+fn trained_tour(scene: &str, seed: &str, extra: &[&str]) -> (tempfile::TempDir, PathBuf, PathBuf) {
     let dir = tempfile::tempdir().unwrap();
-    let scene = repo_dir().join("scripts/heldout/two-mugs-approach.json");
+    let scene = repo_dir().join(format!("scripts/heldout/{scene}.json"));
     let train_session = dir.path().join("train.mcap");
     crate::common::record_scene_file(&scene, "train", "11", &train_session, &[]);
     let tour = dir.path().join("tour.mcap");
-    let noise = ["--stops", "9", "--speed-noise", "0.05,0.03"];
-    crate::common::record_scene_file(&scene, "tour", seed, &tour, &noise);
-    let model = dir.path().join("mugs.json");
+    let mut args = vec!["--speed-noise", "0.05,0.03"];
+    args.extend_from_slice(extra);
+    crate::common::record_scene_file(&scene, "tour", seed, &tour, &args);
+    let model = dir.path().join("model.json");
     ok(&objloc(
         &["train", p(&train_session), "-o", p(&model), "--no-rerun"],
         &[],
     ));
-    let report = dir.path().join("tour.json");
-    let stdout = ok(&objloc(
-        &[
-            "fuse",
-            p(&tour),
-            "--model",
-            p(&model),
-            "--report",
-            p(&report),
-            "--no-rerun",
-            "--bounds=-3.5,-3.5,0,3.5,3.5,2.5",
-        ],
-        &[],
-    ));
+    (dir, tour, model)
+}
+
+/// Fuses `tour` in the simulated room's bounds with default options and `extra` flags, and
+/// evaluates it: (report, eval, stdout).
+fn fuse_in_room(
+    tour: &Path,
+    model: &Path,
+    report: &Path,
+    extra: &[&str],
+) -> (Value, Value, String) {
+    let mut args = vec![
+        "fuse",
+        p(tour),
+        "--model",
+        p(model),
+        "--report",
+        p(report),
+        "--no-rerun",
+        "--bounds=-3.5,-3.5,0,3.5,3.5,2.5",
+    ];
+    args.extend_from_slice(extra);
+    let stdout = ok(&objloc(&args, &[]));
     let out = ok(&objloc(
-        &["eval", p(&tour), "--report", p(&report), "--json"],
+        &["eval", p(tour), "--report", p(report), "--json"],
         &[],
     ));
     let evals: Value = serde_json::from_str(&out).expect("eval JSON");
-    (json(&report), evals[0].clone(), stdout)
+    (json(report), evals[0].clone(), stdout)
+}
+
+/// The two-mugs approach scene's 5 %/3 % tour of `seed` (9 stops), fused with default
+/// options: (report, eval, stdout).
+fn mugs_approach_5_3(seed: &str) -> (Value, Value, String) {
+    let (dir, tour, model) = trained_tour("two-mugs-approach", seed, &["--stops", "9"]);
+    fuse_in_room(&tour, &model, &dir.path().join("tour.json"), &[])
 }
 
 /// The ratios (refined over /odom) of the rays' mean chi-square and of the floor's
