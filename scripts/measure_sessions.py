@@ -14,6 +14,7 @@ Sets (each skipped with a message where its data is absent):
   repeating  exact-odometry tours over checker, ring, stripe and tile floors (ATE must stay
            within 0.02 m of /odom's, which is 0)
   repeating-wide  the same four floors at tour seeds 1-8 (32 tours)
+  approach-wide  the approach tours at seeds 7-18 (48 tours)
   wide     the held-out-style scenes' tour seeds 1-8 at the default noise (48 low-noise tours)
   small    two 11 cm mugs, one on a table, one on the floor (scripts/heldout/two-mugs.json):
            seeds 21/22 at the default noise and at 5 %/3 %, and seeds 1-8 at the default noise
@@ -150,7 +151,7 @@ def shelf_sessions():
                        session=path, model=model, bounds=ROOM, low_noise=(noise == "default"), truth=None)
 
 
-def approach_sessions():
+def approach_sessions(seeds=range(1, 7), set_name="approach"):
     """The foreign renderer's tour shape in our simulator: a long approach, then an arc."""
     os.makedirs(HELDOUT, exist_ok=True)
     for scene in ["chair-approach", "two-mugs-approach"]:
@@ -158,11 +159,11 @@ def approach_sessions():
         tr = sim_record(sargs + ["--kind", "train", "--seed", "11"], os.path.join(HELDOUT, scene + "-train.mcap"))
         model = train(tr, os.path.join(OUT, "heldout-%s.json" % scene))
         for noise in ["0.01,0.006", "0.05,0.03"]:
-            for seed in range(1, 7):
+            for seed in seeds:
                 path = os.path.join(HELDOUT, "%s-%s-%d.mcap" % (scene, noise, seed))
                 sim_record(sargs + ["--kind", "tour", "--seed", str(seed), "--stops", "9",
                                     "--speed-noise", noise], path)
-                yield dict(set="approach", name="%s-%s-%d" % (scene, "1%/0.6%" if noise == "0.01,0.006" else "5%/3%", seed),
+                yield dict(set=set_name, name="%s-%s-%d" % (scene, "1%/0.6%" if noise == "0.01,0.006" else "5%/3%", seed),
                            session=path, model=model, bounds=ROOM, low_noise=(noise == "0.01,0.006"), truth=None)
 
 
@@ -181,6 +182,12 @@ def wide_sessions():
             sim_record(sargs + ["--kind", "tour", "--seed", str(seed)], path)
             yield dict(set="wide", name="%s-%d" % (scene, seed), session=path, model=model,
                        bounds=ROOM, low_noise=True, truth=None)
+
+
+def approach_wide_sessions():
+    """The approach tours at twelve more seeds (7-18), both noise levels (48 tours): a sample
+    the rollback rules were not made on."""
+    return approach_sessions(seeds=range(7, 19), set_name="approach-wide")
 
 
 def repeating_sessions(seeds=(31, 32), set_name="repeating"):
@@ -286,7 +293,7 @@ def main():
     modes = a.modes.split(",")
     gens = {"shipped": shipped_sessions, "heldout": heldout_sessions, "foreign": foreign_sessions,
             "foreign-cross": lambda: foreign_sessions(cross=True),
-            "repeating": repeating_sessions, "repeating-wide": repeating_wide_sessions, "wide": wide_sessions, "small": small_sessions,
+            "repeating": repeating_sessions, "repeating-wide": repeating_wide_sessions, "approach-wide": approach_wide_sessions, "wide": wide_sessions, "small": small_sessions,
             "shelf": shelf_sessions,
             "approach": approach_sessions}
     results = []
