@@ -83,26 +83,46 @@ fn fuse_and_eval(session: &Path, model: &Path, mode: Mode, threads: &str) -> (Va
         }
     );
     let report = session.with_file_name(format!("{name}.json"));
+    let flags: &[&str] = match mode {
+        Mode::Odometry => &["--no-refine-poses"],
+        Mode::Refined => &["--refine-poses"],
+        Mode::RefinedNoFloor => &["--refine-poses", "--no-floor"],
+    };
+    let (report, eval, _) = fuse_then_eval(
+        session,
+        model,
+        &report,
+        flags,
+        &[("RAYON_NUM_THREADS", threads)],
+    );
+    (report, eval)
+}
+
+/// `objloc fuse SESSION --model MODEL --report REPORT FLAGS...` in the environment `envs`,
+/// then `objloc eval` of the report: (report, the session's evaluation, fuse's stdout).
+fn fuse_then_eval(
+    session: &Path,
+    model: &Path,
+    report: &Path,
+    flags: &[&str],
+    envs: &[(&str, &str)],
+) -> (Value, Value, String) {
     let mut args = vec![
         "fuse",
         p(session),
         "--model",
         p(model),
         "--report",
-        p(&report),
+        p(report),
     ];
-    match mode {
-        Mode::Odometry => args.push("--no-refine-poses"),
-        Mode::Refined => args.push("--refine-poses"),
-        Mode::RefinedNoFloor => args.extend(["--refine-poses", "--no-floor"]),
-    }
-    ok(&objloc(&args, &[("RAYON_NUM_THREADS", threads)]));
+    args.extend_from_slice(flags);
+    let stdout = ok(&objloc(&args, envs));
     let out = ok(&objloc(
-        &["eval", p(session), "--report", p(&report), "--json"],
+        &["eval", p(session), "--report", p(report), "--json"],
         &[],
     ));
     let evals: Value = serde_json::from_str(&out).expect("eval JSON");
-    (json(&report), evals[0].clone())
+    (json(report), evals[0].clone(), stdout)
 }
 
 fn chair_error(eval: &Value) -> f64 {
@@ -391,24 +411,9 @@ fn fuse_in_room(
     report: &Path,
     extra: &[&str],
 ) -> (Value, Value, String) {
-    let mut args = vec![
-        "fuse",
-        p(tour),
-        "--model",
-        p(model),
-        "--report",
-        p(report),
-        "--no-rerun",
-        "--bounds=-3.5,-3.5,0,3.5,3.5,2.5",
-    ];
-    args.extend_from_slice(extra);
-    let stdout = ok(&objloc(&args, &[]));
-    let out = ok(&objloc(
-        &["eval", p(tour), "--report", p(report), "--json"],
-        &[],
-    ));
-    let evals: Value = serde_json::from_str(&out).expect("eval JSON");
-    (json(report), evals[0].clone(), stdout)
+    let mut flags = vec!["--no-rerun", "--bounds=-3.5,-3.5,0,3.5,3.5,2.5"];
+    flags.extend_from_slice(extra);
+    fuse_then_eval(tour, model, report, &flags, &[])
 }
 
 /// The two-mugs approach scene's 5 %/3 % tour of `seed` (9 stops), fused with default
