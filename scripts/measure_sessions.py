@@ -299,6 +299,10 @@ def main():
             "repeating": repeating_sessions, "repeating-wide": repeating_wide_sessions, "approach-wide": approach_wide_sessions, "wide": wide_sessions, "small": small_sessions,
             "shelf": shelf_sessions,
             "approach": approach_sessions}
+    unknown = [n for n in a.sets.split(",") if n not in gens] + [m for m in modes if m not in MODES]
+    if unknown:
+        ap.error("unknown set or mode %s (sets: %s; modes: %s)" % (
+            ", ".join(unknown), ",".join(gens), ",".join(MODES)))
     results = []
     for name in a.sets.split(","):
         if name.startswith("foreign") and not os.path.isdir(FOREIGN):
